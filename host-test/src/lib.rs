@@ -1,0 +1,1 @@
+//! Host side of the IMU cluster: replay of recorded frames through `shared`, ground decoding, and the `ground` tool.

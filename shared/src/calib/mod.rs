@@ -1,0 +1,160 @@
+//! Fixed-point calibration of each sensor group (spec: `docs/calibration.md`).
+//!
+//! Per group, gyro `ω = M_g · (raw_g − b_g)` with `M_g` 3×4 (the two z outputs both contribute) and accelerometer
+//! `a = M_a · (raw_a − b_a)` with a full 3×3 `M_a` (any mounting rotation). Outputs are integers in physical units:
+//! µ°/s for rates, µg for specific force.
+//!
+//! Q-formats: matrix entries and biases are `i32` in Q19.12 (12 fractional bits): matrix entries in output units
+//! per ADC count, biases in ADC counts. The difference `raw·2¹² − b` is formed in `i64`, multiplied by the matrix
+//! entries and summed in `i64` (the Cortex-M4's single-cycle `SMLAL`), then rounded once, half away from zero, by
+//! 2⁻²⁴ and saturated to `i32`. Bounds: with `|raw| ≤ 2¹⁶` and `|b| ≤ 2¹⁶` counts (checked when a table is
+//! loaded) each product is below 2³¹·2²⁹ = 2⁶⁰ and a sum of four below 2⁶², so nothing overflows and the only
+//! error is the final rounding: ≤ 0.5 output LSB, proven against an f64 reference in the tests.
+
+mod table;
+
+pub use table::{CAL_FORMAT_VERSION, CalError, CalibrationTable, encoded_len_max};
+
+use serde::{Deserialize, Serialize};
+
+/// Fractional bits of matrix entries and biases.
+pub const FRAC_BITS: u32 = 12;
+/// Raw gyro channels per group (gyro A x, z; gyro B y, z).
+pub const GYRO_RAW: usize = 4;
+/// Raw accelerometer channels per group.
+pub const ACCEL_RAW: usize = 3;
+/// Calibrated axes per group: gyro x, y, z then accelerometer x, y, z.
+pub const AXES: usize = 6;
+/// Largest accepted bias magnitude, Q19.12 (65536 counts).
+pub const BIAS_LIMIT_Q12: i32 = 1 << 28;
+/// Largest raw magnitude for which the result is exact (see module docs).
+pub const RAW_LIMIT: i32 = 1 << 16;
+
+/// Index of gyro x in a calibrated axis array (µ°/s).
+pub const GX: usize = 0;
+/// Index of gyro y (µ°/s).
+pub const GY: usize = 1;
+/// Index of gyro z (µ°/s).
+pub const GZ: usize = 2;
+/// Index of accelerometer x (µg).
+pub const AX: usize = 3;
+/// Index of accelerometer y (µg).
+pub const AY: usize = 4;
+/// Index of accelerometer z (µg).
+pub const AZ: usize = 5;
+
+/// One group's raw readings in signed counts (ADC codes as read, or signed sensor words).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RawCounts {
+    /// Gyro channels, in the order the group's matrix columns expect (on our board: A x, A z, B y, B z).
+    pub gyro: [i32; GYRO_RAW],
+    /// Accelerometer channels x, y, z as wired.
+    pub accel: [i32; ACCEL_RAW],
+}
+
+impl RawCounts {
+    /// The 7 ADC codes of an FPGA frame group (`wire::frame::RAW_*` order).
+    pub fn from_adc(codes: &crate::wire::frame::RawGroup) -> Self {
+        let [a, b, c, d, e, f, g] = codes.map(i32::from);
+        Self {
+            gyro: [a, b, c, d],
+            accel: [e, f, g],
+        }
+    }
+}
+
+/// Calibration of one group. All fields Q19.12.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct GroupCal {
+    /// `M_g`, µ°/s per count, rows x, y, z; columns = raw gyro channels.
+    pub gyro_matrix_q12: [[i32; GYRO_RAW]; 3],
+    /// `b_g`, counts.
+    pub gyro_bias_q12: [i32; GYRO_RAW],
+    /// `M_a`, µg per count, rows x, y, z.
+    pub accel_matrix_q12: [[i32; ACCEL_RAW]; 3],
+    /// `b_a`, counts.
+    pub accel_bias_q12: [i32; ACCEL_RAW],
+}
+
+/// Rounds `acc / 2^shift` to the nearest integer, halves away from zero, saturating to `i32`.
+fn round_shift_sat(acc: i64, shift: u32) -> i32 {
+    let half = 1i64 << (shift - 1);
+    let q = if acc >= 0 {
+        (acc + half) >> shift
+    } else {
+        -((half - acc) >> shift)
+    };
+    q.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+}
+
+fn affine<const N: usize>(m: &[[i32; N]; 3], b: &[i32; N], raw: &[i32; N]) -> [i32; 3] {
+    let limit = 1i64 << 29;
+    let d: [i64; N] = core::array::from_fn(|j| {
+        ((i64::from(raw[j]) << FRAC_BITS) - i64::from(b[j])).clamp(-limit, limit)
+    });
+    m.map(|row| {
+        let acc = row
+            .iter()
+            .zip(&d)
+            .fold(0i64, |acc, (&mij, &dj)| acc + i64::from(mij) * dj);
+        round_shift_sat(acc, 2 * FRAC_BITS)
+    })
+}
+
+impl GroupCal {
+    /// Calibrates one group: `[gx, gy, gz]` in µ°/s then `[ax, ay, az]` in µg (see `GX` … `AZ`).
+    pub fn apply(&self, raw: &RawCounts) -> [i32; AXES] {
+        let [gx, gy, gz] = affine(&self.gyro_matrix_q12, &self.gyro_bias_q12, &raw.gyro);
+        let [ax, ay, az] = affine(&self.accel_matrix_q12, &self.accel_bias_q12, &raw.accel);
+        [gx, gy, gz, ax, ay, az]
+    }
+
+    /// True when every bias is within [`BIAS_LIMIT_Q12`], the domain where [`Self::apply`] is exact.
+    pub fn biases_in_range(&self) -> bool {
+        self.gyro_bias_q12
+            .iter()
+            .chain(&self.accel_bias_q12)
+            .all(|b| b.unsigned_abs() <= BIAS_LIMIT_Q12 as u32)
+    }
+}
+
+/// Nominal analog chain of our board, the source of the factory-default calibration and of the simulator's
+/// inverse calibration. ADS8332 (16 bit, unipolar, 4.096 V reference: 62.5 µV per count); LPY410AL gyros on their
+/// 4× outputs (10 mV per °/s, zero rate at 1.23 V); ADXL335 accelerometer at 3.0 V (300 mV/g, zero g at 1.5 V).
+pub mod board {
+    use super::{FRAC_BITS, GroupCal};
+
+    /// ADC resolution, µV per count.
+    pub const ADC_UV_PER_COUNT: f64 = 62.5;
+    /// Gyro sensitivity, µV per °/s.
+    pub const GYRO_UV_PER_DPS: f64 = 10_000.0;
+    /// Gyro zero-rate output, µV.
+    pub const GYRO_ZERO_UV: f64 = 1_230_000.0;
+    /// Accelerometer sensitivity, µV per g.
+    pub const ACCEL_UV_PER_G: f64 = 300_000.0;
+    /// Accelerometer zero-g output, µV.
+    pub const ACCEL_ZERO_UV: f64 = 1_500_000.0;
+
+    /// Nominal gyro scale: µ°/s per count (= 62.5 / 10000 °/s = 6250 µ°/s).
+    pub const GYRO_UDPS_PER_COUNT: i32 = 6_250;
+    /// Nominal accelerometer scale, Q19.12 µg per count (62.5 / 300000 g = 208.33 µg).
+    pub const ACCEL_UG_PER_COUNT_Q12: i32 = 853_333;
+    /// Nominal gyro zero-rate code, Q19.12 (1.23 V / 62.5 µV = 19680 counts).
+    pub const GYRO_ZERO_Q12: i32 = 19_680 << FRAC_BITS;
+    /// Nominal accelerometer zero-g code, Q19.12 (24000 counts).
+    pub const ACCEL_ZERO_Q12: i32 = 24_000 << FRAC_BITS;
+
+    const G: i32 = GYRO_UDPS_PER_COUNT << FRAC_BITS;
+    const A: i32 = ACCEL_UG_PER_COUNT_Q12;
+
+    /// The nominal calibration of one group: x from gyro A, y from gyro B, z the mean of both z outputs.
+    pub const NOMINAL: GroupCal = GroupCal {
+        gyro_matrix_q12: [[G, 0, 0, 0], [0, 0, G, 0], [0, G / 2, 0, G / 2]],
+        gyro_bias_q12: [GYRO_ZERO_Q12; 4],
+        accel_matrix_q12: [[A, 0, 0], [0, A, 0], [0, 0, A]],
+        accel_bias_q12: [ACCEL_ZERO_Q12; 3],
+    };
+}
+
+#[cfg(test)]
+mod tests;

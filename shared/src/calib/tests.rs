@@ -1,0 +1,168 @@
+use super::*;
+use proptest::prelude::*;
+
+extern crate std;
+
+/// The f64 reference of `M · (raw − b)` with the table's own (quantised) coefficients.
+fn reference<const N: usize>(m: &[[i32; N]; 3], b: &[i32; N], raw: &[i32; N]) -> [f64; 3] {
+    let scale = f64::from(1u32 << FRAC_BITS);
+    m.map(|row| {
+        row.iter()
+            .zip(b)
+            .zip(raw)
+            .map(|((&mij, &bj), &rj)| {
+                (f64::from(mij) / scale) * (f64::from(rj) - f64::from(bj) / scale)
+            })
+            .sum()
+    })
+}
+
+fn check_against_reference(cal: &GroupCal, raw: &RawCounts) -> Result<(), TestCaseError> {
+    let got = cal.apply(raw);
+    let g = reference(&cal.gyro_matrix_q12, &cal.gyro_bias_q12, &raw.gyro);
+    let a = reference(&cal.accel_matrix_q12, &cal.accel_bias_q12, &raw.accel);
+    for (axis, (&out, &want)) in got.iter().zip(g.iter().chain(&a)).enumerate() {
+        let clamped = want.clamp(f64::from(i32::MIN), f64::from(i32::MAX));
+        // f64 carries ~1e-16 relative error on sums up to 2^62 / 2^24: allow 1e-6 LSB above the bound.
+        prop_assert!(
+            (f64::from(out) - clamped).abs() <= 0.5 + 1e-6,
+            "axis {axis}: fixed {out}, f64 {want}"
+        );
+    }
+    Ok(())
+}
+
+fn any_matrix<const N: usize>() -> impl Strategy<Value = [[i32; N]; 3]> {
+    proptest::array::uniform3(proptest::array::uniform::<_, N>(any::<i32>()))
+}
+
+fn bias<const N: usize>() -> impl Strategy<Value = [i32; N]> {
+    proptest::array::uniform::<_, N>(-BIAS_LIMIT_Q12..=BIAS_LIMIT_Q12)
+}
+
+prop_compose! {
+    fn any_cal()(gm in any_matrix::<GYRO_RAW>(), gb in bias::<GYRO_RAW>(), am in any_matrix::<ACCEL_RAW>(),
+                 ab in bias::<ACCEL_RAW>()) -> GroupCal {
+        GroupCal { gyro_matrix_q12: gm, gyro_bias_q12: gb, accel_matrix_q12: am, accel_bias_q12: ab }
+    }
+}
+
+prop_compose! {
+    /// Raw readings over the whole input range: 16-bit ADC codes and signed 16-bit words.
+    fn any_raw()(g in proptest::array::uniform4(-RAW_LIMIT..=RAW_LIMIT),
+                 a in proptest::array::uniform3(-RAW_LIMIT..=RAW_LIMIT)) -> RawCounts {
+        RawCounts { gyro: g, accel: a }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(4000))]
+
+    /// Any matrix, any bias within limits, any raw reading: error ≤ 0.5 output LSB against f64, saturating.
+    #[test]
+    fn fixed_point_matches_f64_reference(cal in any_cal(), raw in any_raw()) {
+        check_against_reference(&cal, &raw)?;
+    }
+
+    /// Realistic scales (the nominal board chain ± 10 % with small cross terms) over all ADC codes.
+    #[test]
+    fn nominal_scales_match_f64_reference(
+        scale in proptest::array::uniform3(0.9f64..1.1), cross in proptest::array::uniform3(-0.02f64..0.02),
+        codes in proptest::array::uniform7(any::<u16>()),
+    ) {
+        let mut cal = board::NOMINAL;
+        for (i, row) in cal.accel_matrix_q12.iter_mut().enumerate() {
+            for (j, m) in row.iter_mut().enumerate() {
+                let f = if i == j { scale[i] } else { cross[(i + j) % 3] };
+                *m = (f64::from(board::ACCEL_UG_PER_COUNT_Q12) * f).round() as i32;
+            }
+        }
+        check_against_reference(&cal, &RawCounts::from_adc(&codes))?;
+    }
+
+    /// Decoding never panics, whatever the bytes.
+    #[test]
+    fn decode_arbitrary_bytes_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..3000)) {
+        let _ = CalibrationTable::<16>::decode(&bytes);
+    }
+}
+
+#[test]
+fn nominal_chain_in_physical_units() {
+    // 1 V above the gyro zero level = 100 °/s; 0.3 V above the accel zero = 1 g.
+    let zero_g = (board::GYRO_ZERO_UV / board::ADC_UV_PER_COUNT) as i32;
+    let zero_a = (board::ACCEL_ZERO_UV / board::ADC_UV_PER_COUNT) as i32;
+    let dps100 = (1_000_000.0 / board::ADC_UV_PER_COUNT) as i32; // 16000 counts
+    let g1 = (board::ACCEL_UV_PER_G / board::ADC_UV_PER_COUNT) as i32; // 4800 counts
+    let raw = RawCounts {
+        gyro: [
+            zero_g + dps100,
+            zero_g - dps100 / 2,
+            zero_g - dps100,
+            zero_g + dps100 / 2,
+        ],
+        accel: [zero_a, zero_a - g1, zero_a + g1],
+    };
+    let out = board::NOMINAL.apply(&raw);
+    // z = mean of both z outputs = 0; accel 853333 / 4096 µg per count × 4800 = 999 999.6 µg.
+    assert_eq!(
+        out,
+        [100_000_000, -100_000_000, 0, 0, -1_000_000, 1_000_000]
+    );
+}
+
+#[test]
+fn rounding_is_half_away_from_zero() {
+    assert_eq!(round_shift_sat(3 << 21, 24), 0); // 0.375 → 0
+    assert_eq!(round_shift_sat(3 << 23, 24), 2); // 1.5 → 2
+    assert_eq!(round_shift_sat(1 << 23, 24), 1); // +0.5 → 1
+    assert_eq!(round_shift_sat(-(1 << 23), 24), -1); // −0.5 → −1
+    assert_eq!(round_shift_sat((1 << 23) - 1, 24), 0);
+    assert_eq!(round_shift_sat(i64::MAX >> 1, 24), i32::MAX);
+    assert_eq!(round_shift_sat(i64::MIN >> 1, 24), i32::MIN);
+}
+
+#[test]
+fn table_round_trip_and_damage() {
+    let mut t = CalibrationTable::<16>::factory();
+    t.cal_id = 0xC0FFEE;
+    t.groups[3].accel_matrix_q12[1][2] = -12345;
+    let mut buf = [0u8; encoded_len_max(16)];
+    let bytes = t.encode(&mut buf).unwrap().to_vec();
+    assert_eq!(CalibrationTable::<16>::decode(&bytes), Ok(t));
+    assert_eq!(
+        CalibrationTable::<8>::decode(&bytes),
+        Err(CalError::GroupCount(16))
+    );
+    for i in 0..bytes.len() {
+        let mut b = bytes.clone();
+        b[i] ^= 0x01;
+        assert_eq!(
+            CalibrationTable::<16>::decode(&b),
+            Err(CalError::Crc),
+            "byte {i}"
+        );
+    }
+    assert_eq!(
+        CalibrationTable::<16>::decode(&bytes[..5]),
+        Err(CalError::Crc)
+    );
+    assert_eq!(
+        CalibrationTable::<16>::decode(&bytes[..3]),
+        Err(CalError::Truncated)
+    );
+    let mut small = [0u8; 100];
+    assert_eq!(t.encode(&mut small), Err(CalError::BufferTooSmall));
+}
+
+#[test]
+fn out_of_range_bias_is_refused() {
+    let mut t = CalibrationTable::<2>::factory();
+    t.groups[1].gyro_bias_q12[0] = BIAS_LIMIT_Q12 + 1;
+    let mut buf = [0u8; encoded_len_max(2)];
+    let bytes = t.encode(&mut buf).unwrap().to_vec();
+    assert_eq!(
+        CalibrationTable::<2>::decode(&bytes),
+        Err(CalError::BiasOutOfRange)
+    );
+}

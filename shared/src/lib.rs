@@ -1,0 +1,13 @@
+//! Sans-IO core of the IMU cluster: everything between the FPGA's bytes and the telemetry's bytes, with no I/O,
+//! no heap and no panics on any input. The firmware and the host replay run this same code.
+//!
+//! Data path, one module per stage:
+//! [`wire`] (FPGA frames) → [`calib`] (fixed-point calibration) → [`fuse`] (cluster fusion) → [`allan`]
+//! (streaming Allan accumulators) → [`telemetry`] (postcard messages) — tied together by [`pipeline`].
+#![no_std]
+#![deny(missing_docs)]
+
+pub mod calib;
+pub mod crc;
+pub mod serde_array;
+pub mod wire;

@@ -1,0 +1,216 @@
+//! Streaming decoder of the FPGA link: bytes in chunks of any size in, frames out.
+//!
+//! The decoder holds at most one frame's worth of bytes. It locks onto the sync marker, checks the CRC, and after
+//! corruption resynchronises on the next sync marker *inside the bytes it already holds*, so that a damaged frame
+//! costs only itself: the frame that follows it is found even when the damaged frame was shortened (dropped bytes),
+//! lengthened (inserted bytes) or its sync marker was hit.
+
+use super::frame::{FRAME_LEN, FrameRepr, SYNC, WireError};
+
+/// Link statistics. All counters wrap modulo 2³² (compare deltas, as with network interface counters).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LinkCounters {
+    /// Frames accepted (sync and CRC valid).
+    pub frames: u32,
+    /// Candidates that started with the sync marker but failed the CRC.
+    pub crc_errors: u32,
+    /// Times the decoder locked onto a frame after having skipped bytes.
+    pub resyncs: u32,
+    /// Bytes discarded while searching for a sync marker.
+    pub bytes_skipped: u32,
+    /// Frames missing according to the sequence counter (sum of the gaps).
+    pub frames_dropped: u32,
+    /// Sequence jumps backwards (FPGA reset or duplicate); not counted as drops.
+    pub seq_restarts: u32,
+    /// Receive overruns reported by the transport (the UART driver), added by the firmware.
+    pub overruns: u32,
+}
+
+/// A frame out of the decoder, with what the sequence counter says about the frames before it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Decoded {
+    /// The frame.
+    pub frame: FrameRepr,
+    /// Frames missing between the previous accepted frame and this one (0 when contiguous, or for the first frame
+    /// and after a restart).
+    pub missing_before: u32,
+}
+
+/// Streaming frame decoder (see the module documentation).
+#[derive(Clone, Debug)]
+pub struct FrameDecoder {
+    buf: [u8; FRAME_LEN],
+    /// Bytes held in `buf`; `buf[..len]` always starts with the sync marker or a prefix of it.
+    len: usize,
+    last_seq: Option<u16>,
+    skipped_since_lock: bool,
+    counters: LinkCounters,
+}
+
+impl Default for FrameDecoder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Index of the first position where `bytes` holds the sync marker, or a prefix of it that runs to the end;
+/// `bytes.len()` if there is none.
+fn sync_candidate(bytes: &[u8]) -> usize {
+    let mut from = 0;
+    while let Some(offset) = bytes
+        .get(from..)
+        .and_then(|s| s.iter().position(|&b| b == SYNC[0]))
+    {
+        let at = from + offset;
+        let rest = bytes.get(at..).unwrap_or(&[]);
+        let n = rest.len().min(SYNC.len());
+        if rest.get(..n) == SYNC.get(..n) {
+            return at;
+        }
+        from = at + 1;
+    }
+    bytes.len()
+}
+
+impl FrameDecoder {
+    /// A decoder waiting for its first sync marker.
+    pub const fn new() -> Self {
+        Self {
+            buf: [0; FRAME_LEN],
+            len: 0,
+            last_seq: None,
+            skipped_since_lock: false,
+            counters: LinkCounters {
+                frames: 0,
+                crc_errors: 0,
+                resyncs: 0,
+                bytes_skipped: 0,
+                frames_dropped: 0,
+                seq_restarts: 0,
+                overruns: 0,
+            },
+        }
+    }
+
+    /// The link statistics so far.
+    pub fn counters(&self) -> &LinkCounters {
+        &self.counters
+    }
+
+    /// Adds receive overruns reported by the transport to the statistics.
+    pub fn note_overruns(&mut self, n: u32) {
+        self.counters.overruns = self.counters.overruns.wrapping_add(n);
+    }
+
+    /// Forgets the partial frame and the sequence history (counters are kept), e.g. after a link restart.
+    pub fn reset(&mut self) {
+        self.len = 0;
+        self.last_seq = None;
+    }
+
+    /// Consumes bytes from the front of `input` until a frame is complete (returned) or `input` is used up (`None`).
+    /// Call it again with the rest of `input` until it returns `None`; bytes are never consumed without being
+    /// either buffered, counted as skipped, or returned as part of a frame.
+    pub fn decode(&mut self, input: &mut &[u8]) -> Option<Decoded> {
+        loop {
+            if self.len == 0 {
+                let skip = sync_candidate(input);
+                if skip > 0 {
+                    self.skip(skip);
+                    *input = input.get(skip..).unwrap_or(&[]);
+                }
+                if input.is_empty() {
+                    return None;
+                }
+                if let Some(candidate) = input.first_chunk::<FRAME_LEN>() {
+                    // Fast path: a whole frame in the caller's buffer, no copy.
+                    match FrameRepr::parse_bytes(candidate) {
+                        Ok(frame) => {
+                            *input = input.get(FRAME_LEN..).unwrap_or(&[]);
+                            return Some(self.accept(frame));
+                        }
+                        Err(e) => {
+                            self.reject(e);
+                            self.skip(1);
+                            *input = input.get(1..).unwrap_or(&[]);
+                            continue;
+                        }
+                    }
+                }
+                // A partial frame: keep it.
+                let n = input.len();
+                self.buf.get_mut(..n)?.copy_from_slice(input);
+                self.len = n;
+                *input = &[];
+                return None;
+            }
+
+            let take = (FRAME_LEN - self.len).min(input.len());
+            let (head, rest) = input.split_at(take);
+            self.buf
+                .get_mut(self.len..self.len + take)?
+                .copy_from_slice(head);
+            self.len += take;
+            *input = rest;
+            if self.len < FRAME_LEN {
+                // Drop an early mismatch of the marker at once rather than after a whole frame's worth of bytes.
+                if self.buf.get(..self.len.min(SYNC.len())) == SYNC.get(..self.len.min(SYNC.len()))
+                {
+                    return None;
+                }
+            } else {
+                match FrameRepr::parse_bytes(&self.buf) {
+                    Ok(frame) => {
+                        self.len = 0;
+                        return Some(self.accept(frame));
+                    }
+                    Err(e) => self.reject(e),
+                }
+            }
+            // Resynchronise inside the held bytes: keep everything from the next candidate on.
+            let next = 1 + sync_candidate(self.buf.get(1..self.len).unwrap_or(&[]));
+            self.skip(next);
+            self.buf.copy_within(next..self.len, 0);
+            self.len -= next;
+        }
+    }
+
+    fn skip(&mut self, n: usize) {
+        self.counters.bytes_skipped = self.counters.bytes_skipped.wrapping_add(n as u32);
+        self.skipped_since_lock = true;
+    }
+
+    fn reject(&mut self, e: WireError) {
+        if e == WireError::BadCrc {
+            self.counters.crc_errors = self.counters.crc_errors.wrapping_add(1);
+        }
+    }
+
+    fn accept(&mut self, frame: FrameRepr) -> Decoded {
+        let c = &mut self.counters;
+        c.frames = c.frames.wrapping_add(1);
+        if self.skipped_since_lock {
+            c.resyncs = c.resyncs.wrapping_add(1);
+            self.skipped_since_lock = false;
+        }
+        let mut missing_before = 0;
+        if let Some(last) = self.last_seq {
+            let gap = frame.seq.wrapping_sub(last.wrapping_add(1));
+            if gap < 0x8000 {
+                missing_before = u32::from(gap);
+                c.frames_dropped = c.frames_dropped.wrapping_add(missing_before);
+            } else {
+                c.seq_restarts = c.seq_restarts.wrapping_add(1);
+            }
+        }
+        self.last_seq = Some(frame.seq);
+        Decoded {
+            frame,
+            missing_before,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
