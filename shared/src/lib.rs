@@ -7,6 +7,7 @@
 #![no_std]
 #![deny(missing_docs)]
 
+pub mod allan;
 pub mod calib;
 pub mod crc;
 pub mod serde_array;
