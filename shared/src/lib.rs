@@ -10,5 +10,8 @@
 pub mod allan;
 pub mod calib;
 pub mod crc;
+pub mod fuse;
 pub mod serde_array;
+#[cfg(test)]
+mod testutil;
 pub mod wire;

@@ -1,0 +1,219 @@
+use super::*;
+use crate::calib::{AX, GX, RawCounts};
+use crate::testutil::{Rng, mean, rms};
+
+extern crate std;
+use std::vec::Vec;
+
+const G: usize = 16;
+const SIGMA_UDPS: f64 = 100_000.0; // 0.1 °/s per sensor
+const SIGMA_UG: f64 = 5_000.0; // 5 mg
+
+/// A scenario: per group a noise multiplier and a bias per axis, plus an optional stuck group.
+struct Scenario {
+    noise: [f64; G],
+    bias: [[f64; AXES]; G],
+    stuck: Option<usize>,
+    saturated: Option<usize>,
+}
+
+impl Scenario {
+    fn clean() -> Self {
+        Self {
+            noise: [1.0; G],
+            bias: [[0.0; AXES]; G],
+            stuck: None,
+            saturated: None,
+        }
+    }
+
+    /// Runs `n` samples through a fusion with `config`; returns the fused gx and ax series and the last sample.
+    fn run(
+        &self,
+        config: FusionConfig,
+        n: usize,
+        seed: u64,
+    ) -> (Fusion<G>, Vec<f64>, Vec<f64>, FusedSample) {
+        let table = CalibrationTable::<G>::factory();
+        let mut fusion = Fusion::<G>::new(config);
+        let mut rng = Rng::new(seed);
+        let (mut gx, mut ax) = (Vec::new(), Vec::new());
+        let mut last = FusedSample::default();
+        for _ in 0..n {
+            let mut raw = [RawCounts::default(); G];
+            let mut axes = [[0i32; AXES]; G];
+            for g in 0..G {
+                for (a, (x, b)) in axes[g].iter_mut().zip(self.bias[g]).enumerate() {
+                    let sigma = if a < 3 { SIGMA_UDPS } else { SIGMA_UG };
+                    *x = (b + self.noise[g] * sigma * rng.normal()).round() as i32;
+                }
+                let code = |x: i32| 30_000 + x.rem_euclid(20_000);
+                raw[g] = RawCounts {
+                    gyro: [
+                        code(axes[g][0]),
+                        code(axes[g][1]),
+                        code(axes[g][2]),
+                        30_000 + (g as i32),
+                    ],
+                    accel: [code(axes[g][3]), code(axes[g][4]), code(axes[g][5])],
+                };
+                // the fourth gyro channel is constant above: make it vary too
+                raw[g].gyro[3] = code(axes[g][0] / 3 + axes[g][2]);
+                if self.stuck == Some(g) {
+                    axes[g] = [2_000_000, 0, 0, 0, 0, 0];
+                    raw[g] = RawCounts {
+                        gyro: [31_000; 4],
+                        accel: [24_000; 3],
+                    };
+                }
+                if self.saturated == Some(g) {
+                    raw[g].gyro[1] = 65_535;
+                }
+            }
+            last = fusion.fuse(&raw, &axes, &table);
+            gx.push(f64::from(last.axes[GX]));
+            ax.push(f64::from(last.axes[AX]));
+        }
+        (fusion, gx, ax, last)
+    }
+}
+
+const PLAIN_EQUAL: FusionConfig = FusionConfig {
+    mode: FusionMode::Equal,
+    robust: false,
+    ..FusionConfig::DEFAULT
+};
+const PLAIN_WEIGHTED: FusionConfig = FusionConfig {
+    mode: FusionMode::InverseVariance,
+    robust: false,
+    ..FusionConfig::DEFAULT
+};
+
+#[test]
+fn clean_cluster_gains_sqrt_n() {
+    let (_, gx, _, last) = Scenario::clean().run(PLAIN_EQUAL, 20_000, 1);
+    let gain = SIGMA_UDPS / rms(&gx);
+    assert!((gain - 4.0).abs() < 0.1, "gain {gain}");
+    assert_eq!(last.used, [16; AXES]);
+}
+
+#[test]
+fn noisy_sensor_weighted_beats_equal_by_expected_factor() {
+    let mut s = Scenario::clean();
+    s.noise[5] = 10.0;
+    let warm = 1 << 12;
+    let (_, eq, _, _) = s.run(PLAIN_EQUAL, 60_000, 2);
+    let (fusion, w, _, _) = s.run(PLAIN_WEIGHTED, 60_000, 2);
+    let ratio = rms(&eq[warm..]) / rms(&w[warm..]);
+    // Equal: σ²(15 + 100)/256; optimal weights: σ²/(15 + 1/100). Ratio of deviations √6.7428 = 2.597.
+    let expected = ((15.0 + 100.0) / 256.0 * (15.0 + 0.01f64)).sqrt();
+    assert!(
+        (ratio / expected - 1.0).abs() < 0.03,
+        "ratio {ratio:.3}, expected {expected:.3}"
+    );
+    // The estimates see the noisy sensor ~100× noisier; its weight is ~1/100 of the best.
+    let (v0, v5) = (
+        fusion.noise_var(0, GX).unwrap() as f64,
+        fusion.noise_var(5, GX).unwrap() as f64,
+    );
+    assert!(
+        (60.0..160.0).contains(&(v5 / v0)),
+        "variance ratio {}",
+        v5 / v0
+    );
+    assert!((400..1300).contains(&fusion.weight_q16(5, GX).unwrap()));
+}
+
+#[test]
+fn stuck_sensor_is_left_out_and_counted() {
+    let mut s = Scenario::clean();
+    s.stuck = Some(3);
+    let n = 10_000;
+    let (_, eq, _, _) = s.run(PLAIN_EQUAL, n, 3);
+    let (fusion, robust, _, last) = s.run(FusionConfig::DEFAULT, n, 3);
+    // The dead gyro reads a constant 2 °/s: the equal mean carries 2/16 °/s of it, the robust mean none.
+    assert!(
+        (mean(&eq) - 125_000.0).abs() < 3_000.0,
+        "equal mean {}",
+        mean(&eq)
+    );
+    let tol = 4.0 * SIGMA_UDPS / (15.0 * n as f64).sqrt();
+    assert!(
+        mean(&robust[100..]).abs() < tol,
+        "robust mean {}",
+        mean(&robust[100..])
+    );
+    assert_eq!(last.health.gyro.stuck, 1 << 3);
+    assert_eq!(last.health.accel.stuck, 1 << 3);
+    assert_eq!(last.used, [15; AXES]);
+    let window = u32::from(FusionConfig::DEFAULT.stuck_window);
+    assert_eq!(
+        fusion.fault_counts(3).unwrap()[0].stuck,
+        n as u32 - window + 1
+    );
+}
+
+#[test]
+fn biased_sensor_is_an_outlier() {
+    let mut s = Scenario::clean();
+    s.bias[7][AX] = 50_000.0; // 50 mg = 10 σ
+    let n = 10_000;
+    let (_, _, eq, _) = s.run(PLAIN_EQUAL, n, 4);
+    let (fusion, _, robust, last) = s.run(FusionConfig::DEFAULT, n, 4);
+    assert!(
+        (mean(&eq) - 50_000.0 / 16.0).abs() < 150.0,
+        "equal mean {}",
+        mean(&eq)
+    );
+    assert!(
+        mean(&robust).abs() < 4.0 * SIGMA_UG / (15.0 * n as f64).sqrt(),
+        "robust mean {}",
+        mean(&robust)
+    );
+    assert_eq!(last.used[AX], 15);
+    assert_eq!(last.health.accel.outlier, 1 << 7);
+    // Clean sensors are almost never called outliers at 6 σ.
+    let clean_outliers: u32 = (0..G)
+        .filter(|&g| g != 7)
+        .map(|g| fusion.fault_counts(g).unwrap()[1].outlier)
+        .sum();
+    assert!(clean_outliers < 20, "{clean_outliers}");
+    assert!(fusion.fault_counts(7).unwrap()[1].outlier > n as u32 - 10);
+}
+
+#[test]
+fn saturated_sensor_is_left_out() {
+    let mut s = Scenario::clean();
+    s.saturated = Some(9);
+    let (fusion, _, _, last) = s.run(FusionConfig::DEFAULT, 100, 5);
+    assert_eq!(last.health.gyro.saturated, 1 << 9);
+    assert_eq!(last.health.accel.saturated, 0);
+    assert_eq!(&last.used[..3], &[15; 3]);
+    assert_eq!(fusion.fault_counts(9).unwrap()[0].saturated, 100);
+}
+
+#[test]
+fn all_sensors_failed_gives_an_invalid_sample() {
+    let table = CalibrationTable::<G>::factory();
+    let mut fusion = Fusion::<G>::new(FusionConfig::DEFAULT);
+    let raw = [RawCounts {
+        gyro: [0; 4],
+        accel: [65_535; 3],
+    }; G];
+    let out = fusion.fuse(&raw, &[[123; AXES]; G], &table);
+    assert!(!out.valid());
+    assert_eq!(out.used, [0; AXES]);
+    assert_eq!(out.axes, [0; AXES]);
+    assert_eq!(out.health.gyro.saturated, 0xFFFF);
+}
+
+#[test]
+fn helpers_round_and_take_medians() {
+    assert_eq!(div_round(7, 2), 4);
+    assert_eq!(div_round(-7, 2), -4);
+    assert_eq!(div_round(5, 3), 2);
+    assert_eq!(div_round(i64::MAX / 2, 1), i32::MAX);
+    assert_eq!(median_sorted(&[1, 2, 10]), 2);
+    assert_eq!(median_sorted(&[1, 2, 3, 10]), 3); // (2 + 3) / 2 = 2.5 → 3
+    assert_eq!(median_sorted(&[]), 0);
+}
