@@ -11,7 +11,9 @@ pub mod allan;
 pub mod calib;
 pub mod crc;
 pub mod fuse;
+pub mod pipeline;
 pub mod serde_array;
+pub mod telemetry;
 #[cfg(test)]
 mod testutil;
 pub mod wire;

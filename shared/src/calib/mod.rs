@@ -144,6 +144,16 @@ pub mod board {
     /// Nominal accelerometer zero-g code, Q19.12 (24000 counts).
     pub const ACCEL_ZERO_Q12: i32 = 24_000 << FRAC_BITS;
 
+    /// ADC codes (unrounded) that the nominal chain produces for a true rate (°/s, sensor axes) and specific
+    /// force (g), in `wire::frame::RAW_*` order: the inverse of [`NOMINAL`], for simulators and tests.
+    pub fn nominal_codes(rate_dps: [f64; 3], accel_g: [f64; 3]) -> [f64; 7] {
+        let g = |w: f64| (GYRO_ZERO_UV + w * GYRO_UV_PER_DPS) / ADC_UV_PER_COUNT;
+        let a = |x: f64| (ACCEL_ZERO_UV + x * ACCEL_UV_PER_G) / ADC_UV_PER_COUNT;
+        let [wx, wy, wz] = rate_dps;
+        let [ax, ay, az] = accel_g;
+        [g(wx), g(wz), g(wy), g(wz), a(ax), a(ay), a(az)]
+    }
+
     const G: i32 = GYRO_UDPS_PER_COUNT << FRAC_BITS;
     const A: i32 = ACCEL_UG_PER_COUNT_Q12;
 

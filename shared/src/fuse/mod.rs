@@ -234,7 +234,7 @@ pub struct Fusion<const G: usize> {
 }
 
 /// `num / den` rounded half away from zero, saturated to `i32`; `den` > 0.
-fn div_round(num: i64, den: i64) -> i32 {
+pub(crate) fn div_round(num: i64, den: i64) -> i32 {
     let half = den / 2;
     let q = if num >= 0 {
         (num + half) / den

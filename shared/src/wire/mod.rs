@@ -4,8 +4,10 @@
 //! guarantees that no accessor can fail afterwards, and a parsed representation (`…Repr`) with `parse` and `emit`
 //! that mirror each other. Specifications: `docs/fpga-link.md`, `docs/bus.md`.
 
+pub mod control;
 pub mod decoder;
 pub mod frame;
 
-pub use decoder::{FrameDecoder, LinkCounters};
+pub use control::{ControlError, FpgaControl};
+pub use decoder::{Decoded, FrameDecoder, LinkCounters};
 pub use frame::{Frame, FrameRepr, RawSample, WireError};

@@ -1,0 +1,545 @@
+//! The whole on-board job as one sans-IO state machine: FPGA link bytes and command bytes in, outputs out
+//! (telemetry, FPGA control, "persist the calibration"). The firmware and the host replay run this same code;
+//! neither does any processing of its own.
+//!
+//! Per frame: calibrate the 16 groups, feed the 96 sensor Allan channels, fuse, feed the 6 fused Allan channels,
+//! and add the fused sample to the output interval's running mean. Every `frames_per_output` frames the mean is
+//! sent as a [`FusedReport`].
+//!
+//! # Output rate: averaging, not discarding
+//! The FPGA's decimator keeps 1 data set of every N + 1 and discards the rest; the noise of each kept sample is
+//! the sensor's whole-band noise, so its white-noise deviation is not reduced at all (the discarded band folds
+//! onto the kept samples). The pipeline instead averages L frames per output: for white noise of deviation σ per
+//! frame the output deviation is σ/√L (noise gain 1/√L), and the mean is a low-pass filter (sinc response, first
+//! null at the output rate) instead of aliasing. `tests::averaging_reduces_noise_by_sqrt_l` shows both.
+//!
+//! # Time and Allan τ₀
+//! Time advances by N + 1 FPGA base periods per frame, including frames the sequence counter shows as lost. A
+//! change of the decimation in the frames (or of the calibration) restarts the Allan accumulators and the output
+//! interval, so that no statistic mixes two sample rates or two calibrations. Lost frames are not filled in the
+//! Allan accumulators (they assume contiguous data; `LinkCounters::frames_dropped` says how far that holds).
+//! While a fused axis has no valid sensor, its Allan channel repeats the last valid value (`invalid_frames`).
+
+use crate::allan::{AllanAccumulator, LEVELS};
+use crate::calib::{AXES, CalibrationTable, RawCounts, encoded_len_max};
+use crate::crc::crc32c;
+use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, HealthMask, div_round};
+use crate::telemetry::{
+    Ack, AllanReport, CAL_CHUNK_MAX, CalSource, Command, CommandEnvelope, DecodeError, FaultReport,
+    FusedReport, HealthReport, Reject, Telemetry, decode, peek_tag,
+};
+use crate::wire::frame::GROUPS;
+use crate::wire::{Decoded, FpgaControl, FrameDecoder, LinkCounters};
+
+/// Allan channels of the calibrated sensor axes: group g, axis a → channel 6g + a.
+pub const SENSOR_CHANNELS: usize = GROUPS * AXES;
+/// First Allan channel of the fused axes.
+pub const FUSED_CHANNEL0: usize = SENSOR_CHANNELS;
+/// All Allan channels.
+pub const ALLAN_CHANNELS: usize = SENSOR_CHANNELS + AXES;
+/// Outputs the pipeline can hold before the caller polls.
+pub const OUTBOX_LEN: usize = 16;
+/// Most outputs one frame can produce (fused report + health report); `push_link` keeps this much room.
+const OUTPUTS_PER_FRAME: usize = 2;
+/// Longest accepted calibration upload (an encoded 16-group table).
+pub const CAL_UPLOAD_MAX: usize = encoded_len_max(GROUPS);
+/// Longest output interval, frames.
+pub const MAX_FRAMES_PER_OUTPUT: u16 = 4096;
+
+/// Pipeline parameters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PipelineConfig {
+    /// FPGA data-set rate before decimation, mHz (9 676 800 = 9676.8 Hz; N = 15 gives 604.8 frames/s).
+    pub fpga_base_rate_mhz: u64,
+    /// Frames averaged per output (32 at 604.8 frames/s = the seed's 18.9 Hz).
+    pub frames_per_output: u16,
+    /// Outputs between periodic health reports (0 = only on request).
+    pub health_every: u16,
+    /// Fusion parameters.
+    pub fusion: FusionConfig,
+}
+
+impl PipelineConfig {
+    /// Our board's defaults.
+    pub const DEFAULT: Self = Self {
+        fpga_base_rate_mhz: 9_676_800,
+        frames_per_output: 32,
+        health_every: 19,
+        fusion: FusionConfig::DEFAULT,
+    };
+}
+
+/// Something the platform must do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Output {
+    /// Send on the bus.
+    Telemetry(Telemetry),
+    /// Send to the FPGA.
+    Fpga(FpgaControl),
+    /// Store [`Pipeline::calibration`] in non-volatile memory (after an upload was committed).
+    PersistCalibration,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Averager {
+    sum: [i64; AXES],
+    valid: [u16; AXES],
+    used_min: [u8; AXES],
+    health: HealthMask,
+    temp_sum: i32,
+    temp_n: u16,
+    frames: u16,
+    t_us: u64,
+}
+
+impl Averager {
+    const NEW: Self = Self {
+        sum: [0; AXES],
+        valid: [0; AXES],
+        used_min: [u8::MAX; AXES],
+        health: HealthMask {
+            gyro: crate::fuse::SensorFaults {
+                saturated: 0,
+                stuck: 0,
+                outlier: 0,
+            },
+            accel: crate::fuse::SensorFaults {
+                saturated: 0,
+                stuck: 0,
+                outlier: 0,
+            },
+        },
+        temp_sum: 0,
+        temp_n: 0,
+        frames: 0,
+        t_us: 0,
+    };
+
+    fn add(&mut self, s: &FusedSample, temp_cdeg: Option<i16>, t_us: u64) {
+        if self.frames == 0 {
+            self.t_us = t_us;
+        }
+        self.frames += 1;
+        for a in 0..AXES {
+            if let (Some(&used), Some(&x)) = (s.used.get(a), s.axes.get(a))
+                && used > 0
+            {
+                self.sum[a] += i64::from(x);
+                self.valid[a] += 1;
+                self.used_min[a] = self.used_min[a].min(used);
+            }
+        }
+        self.health.merge(&s.health);
+        if let Some(t) = temp_cdeg {
+            self.temp_sum += i32::from(t);
+            self.temp_n += 1;
+        }
+    }
+
+    fn report(&self, seq: u32) -> FusedReport {
+        let mean: [i32; AXES] = core::array::from_fn(|a| match self.valid[a] {
+            0 => 0,
+            n => div_round(self.sum[a], i64::from(n)),
+        });
+        FusedReport {
+            seq,
+            t_us: self.t_us,
+            frames: self.frames,
+            rate_udps: [mean[0], mean[1], mean[2]],
+            accel_ug: [mean[3], mean[4], mean[5]],
+            used: core::array::from_fn(|a| {
+                if self.valid[a] == 0 {
+                    0
+                } else {
+                    self.used_min[a]
+                }
+            }),
+            health: self.health,
+            temp_cdeg: (self.temp_n > 0)
+                .then(|| div_round(i64::from(self.temp_sum), i64::from(self.temp_n)) as i16),
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Upload {
+    buf: [u8; CAL_UPLOAD_MAX],
+    len: u16,
+    crc: u32,
+    received: u16,
+    active: bool,
+}
+
+/// Lazily generated reports (so that a dump never needs a large buffer).
+#[derive(Clone, Copy, Debug, Default)]
+struct Cursor {
+    /// Allan dump: next (channel, level) and the end channel.
+    allan: Option<(u8, u8, u8)>,
+    /// Fault dump: next group.
+    faults: Option<u8>,
+}
+
+/// The on-board pipeline (see module docs). About 66 KiB; build it in place in a static (`new` is `const`).
+pub struct Pipeline {
+    config: PipelineConfig,
+    decoder: FrameDecoder,
+    cal: CalibrationTable<GROUPS>,
+    cal_source: CalSource,
+    fusion: Fusion<GROUPS>,
+    allan: [AllanAccumulator; ALLAN_CHANNELS],
+    fused_hold: [i32; AXES],
+    decimation: Option<u16>,
+    base_ticks: u64,
+    avg: Averager,
+    out_seq: u32,
+    outputs_since_health: u16,
+    outbox: heapless::Deque<Output, OUTBOX_LEN>,
+    cursor: Cursor,
+    upload: Upload,
+    uptime_ms: u64,
+    invalid_frames: u32,
+    telemetry_dropped: u32,
+    commands: [u32; 2],
+}
+
+impl Pipeline {
+    /// A pipeline with the factory calibration.
+    pub const fn new(config: PipelineConfig) -> Self {
+        Self {
+            config,
+            decoder: FrameDecoder::new(),
+            cal: CalibrationTable::factory(),
+            cal_source: CalSource::Factory,
+            fusion: Fusion::new(config.fusion),
+            allan: [const { AllanAccumulator::new() }; ALLAN_CHANNELS],
+            fused_hold: [0; AXES],
+            decimation: None,
+            base_ticks: 0,
+            avg: Averager::NEW,
+            out_seq: 0,
+            outputs_since_health: 0,
+            outbox: heapless::Deque::new(),
+            cursor: Cursor {
+                allan: None,
+                faults: None,
+            },
+            upload: Upload {
+                buf: [0; CAL_UPLOAD_MAX],
+                len: 0,
+                crc: 0,
+                received: 0,
+                active: false,
+            },
+            uptime_ms: 0,
+            invalid_frames: 0,
+            telemetry_dropped: 0,
+            commands: [0; 2],
+        }
+    }
+
+    /// Puts a calibration in force (restarting the statistics that depend on it).
+    pub fn load_calibration(&mut self, table: CalibrationTable<GROUPS>, source: CalSource) {
+        self.cal = table;
+        self.cal_source = source;
+        self.fusion = Fusion::new(*self.fusion.config());
+        self.restart_statistics();
+    }
+
+    /// The calibration in force.
+    pub fn calibration(&self) -> &CalibrationTable<GROUPS> {
+        &self.cal
+    }
+
+    /// Where the calibration in force came from.
+    pub fn calibration_source(&self) -> CalSource {
+        self.cal_source
+    }
+
+    /// Link statistics.
+    pub fn link_counters(&self) -> &LinkCounters {
+        self.decoder.counters()
+    }
+
+    /// Adds receive overruns reported by the platform's UART driver.
+    pub fn note_link_overruns(&mut self, n: u32) {
+        self.decoder.note_overruns(n);
+    }
+
+    /// Sets the uptime reported in health (the platform's clock).
+    pub fn set_uptime_ms(&mut self, ms: u64) {
+        self.uptime_ms = ms;
+    }
+
+    /// Allan accumulator of `channel` (see [`SENSOR_CHANNELS`], [`FUSED_CHANNEL0`]).
+    pub fn allan(&self, channel: usize) -> Option<&AllanAccumulator> {
+        self.allan.get(channel)
+    }
+
+    /// Sample interval of the Allan accumulators, ps (`None` before the first frame).
+    pub fn tau0_ps(&self) -> Option<u64> {
+        let n = u128::from(self.decimation?) + 1;
+        Some((n * 1_000_000_000_000_000 / u128::from(self.config.fpga_base_rate_mhz.max(1))) as u64)
+    }
+
+    /// The fusion state (noise estimates, weights, fault counts).
+    pub fn fusion(&self) -> &Fusion<GROUPS> {
+        &self.fusion
+    }
+
+    /// Consumes link bytes from the front of `input`, processing every complete frame. Stops early, with bytes
+    /// left in `input`, when the outbox is nearly full: call [`Self::poll`] until it returns `None`, then call
+    /// again with the rest. Nothing is lost either way.
+    pub fn push_link(&mut self, input: &mut &[u8]) {
+        while self.outbox.capacity() - self.outbox.len() >= OUTPUTS_PER_FRAME {
+            match self.decoder.decode(input) {
+                Some(d) => self.process(&d),
+                None => return,
+            }
+        }
+    }
+
+    /// Handles one command message (the payload of a bus packet); the ack (and any data) follow in `poll`.
+    pub fn handle_command(&mut self, bytes: &[u8]) {
+        let tag = peek_tag(bytes);
+        let result = match decode::<CommandEnvelope>(bytes) {
+            Err(DecodeError::Version(v)) => Err(Reject::Version(v)),
+            Err(_) => Err(Reject::Malformed),
+            Ok(env) => self.execute(env.cmd),
+        };
+        let i = usize::from(result.is_err());
+        if let Some(c) = self.commands.get_mut(i) {
+            *c = c.wrapping_add(1);
+        }
+        // The ack goes ahead of any data the command produced.
+        let ack = Output::Telemetry(Telemetry::Ack(Ack { tag, result }));
+        if self.outbox.push_front(ack).is_err() {
+            self.telemetry_dropped = self.telemetry_dropped.wrapping_add(1);
+        }
+    }
+
+    /// The next output, if any.
+    pub fn poll(&mut self) -> Option<Output> {
+        if let Some(o) = self.outbox.pop_front() {
+            return Some(o);
+        }
+        if let Some(group) = self.cursor.faults {
+            let next = group + 1;
+            self.cursor.faults = (usize::from(next) < GROUPS).then_some(next);
+            if let Some([gyro, accel]) = self.fusion.fault_counts(usize::from(group)) {
+                return Some(Output::Telemetry(Telemetry::Faults(FaultReport {
+                    group,
+                    gyro,
+                    accel,
+                })));
+            }
+        }
+        while let Some((channel, level, end)) = self.cursor.allan {
+            let (next_channel, next_level) = if usize::from(level) + 1 < LEVELS {
+                (channel, level + 1)
+            } else {
+                (channel + 1, 0)
+            };
+            self.cursor.allan = (next_channel < end).then_some((next_channel, next_level, end));
+            let Some(acc) = self.allan.get(usize::from(channel)) else {
+                continue;
+            };
+            if let Some(l) = acc.level(usize::from(level)).filter(|l| l.count > 0) {
+                return Some(Output::Telemetry(Telemetry::Allan(AllanReport {
+                    channel,
+                    tau0_ps: self.tau0_ps().unwrap_or(0),
+                    samples: acc.samples(),
+                    level: l,
+                })));
+            }
+        }
+        None
+    }
+
+    /// A health report now.
+    pub fn health(&self) -> HealthReport {
+        let mut faults = [FaultCounts::default(); 2];
+        for g in 0..GROUPS {
+            for (sum, c) in faults
+                .iter_mut()
+                .zip(self.fusion.fault_counts(g).unwrap_or_default())
+            {
+                sum.saturated = sum.saturated.wrapping_add(c.saturated);
+                sum.stuck = sum.stuck.wrapping_add(c.stuck);
+                sum.outlier = sum.outlier.wrapping_add(c.outlier);
+            }
+        }
+        let fusion = self.fusion.config();
+        HealthReport {
+            uptime_ms: self.uptime_ms,
+            link: *self.decoder.counters(),
+            cal_id: self.cal.cal_id,
+            cal_source: self.cal_source,
+            decimation: self.decimation,
+            frames_per_output: self.config.frames_per_output,
+            fusion: fusion.mode,
+            robust: fusion.robust,
+            faults,
+            invalid_frames: self.invalid_frames,
+            allan_samples: self.allan.first().map_or(0, AllanAccumulator::samples),
+            telemetry_dropped: self.telemetry_dropped,
+            commands: self.commands,
+        }
+    }
+
+    fn push(&mut self, o: Output) {
+        if self.outbox.push_back(o).is_err() {
+            self.telemetry_dropped = self.telemetry_dropped.wrapping_add(1);
+        }
+    }
+
+    fn restart_statistics(&mut self) {
+        self.allan.iter_mut().for_each(AllanAccumulator::reset);
+        self.avg = Averager::NEW;
+    }
+
+    fn process(&mut self, d: &Decoded) {
+        let f = &d.frame;
+        let step = u64::from(f.decimation) + 1;
+        match self.decimation {
+            Some(n) if n == f.decimation => {
+                self.base_ticks += u64::from(d.missing_before) * step;
+            }
+            Some(_) => self.restart_statistics(),
+            None => {}
+        }
+        self.decimation = Some(f.decimation);
+        let t_us = (u128::from(self.base_ticks) * 1_000_000_000
+            / u128::from(self.config.fpga_base_rate_mhz.max(1))) as u64;
+        self.base_ticks += step;
+
+        let raw: [RawCounts; GROUPS] = f.raw.map(|codes| RawCounts::from_adc(&codes));
+        let mut axes = [[0i32; AXES]; GROUPS];
+        for ((out, r), cal) in axes.iter_mut().zip(&raw).zip(&self.cal.groups) {
+            *out = cal.apply(r);
+        }
+        for (acc, &x) in self.allan.iter_mut().zip(axes.as_flattened()) {
+            acc.push(x);
+        }
+        let fused = self.fusion.fuse(&raw, &axes, &self.cal);
+        if !fused.valid() {
+            self.invalid_frames = self.invalid_frames.wrapping_add(1);
+        }
+        let fused_allan = self.allan.get_mut(FUSED_CHANNEL0..).unwrap_or(&mut []);
+        for (((acc, hold), &x), &used) in fused_allan
+            .iter_mut()
+            .zip(&mut self.fused_hold)
+            .zip(&fused.axes)
+            .zip(&fused.used)
+        {
+            if used > 0 {
+                *hold = x;
+            }
+            acc.push(*hold);
+        }
+
+        self.avg.add(&fused, f.temp_cdeg, t_us);
+        if self.avg.frames >= self.config.frames_per_output.max(1) {
+            let report = self.avg.report(self.out_seq);
+            self.out_seq = self.out_seq.wrapping_add(1);
+            self.avg = Averager::NEW;
+            self.push(Output::Telemetry(Telemetry::Fused(report)));
+            self.outputs_since_health += 1;
+            if self.config.health_every > 0 && self.outputs_since_health >= self.config.health_every
+            {
+                self.outputs_since_health = 0;
+                let h = self.health();
+                self.push(Output::Telemetry(Telemetry::Health(h)));
+            }
+        }
+    }
+
+    fn execute(&mut self, cmd: Command) -> Result<(), Reject> {
+        match cmd {
+            Command::Ping => {}
+            Command::SetDecimation(n) => self.push(Output::Fpga(FpgaControl::SetDecimation(n))),
+            Command::SetOutputRate(l) => {
+                if !(1..=MAX_FRAMES_PER_OUTPUT).contains(&l) {
+                    return Err(Reject::BadArgument);
+                }
+                self.config.frames_per_output = l;
+                self.avg = Averager::NEW;
+            }
+            Command::SetFusion { mode, robust } => {
+                self.fusion.set_config(FusionConfig {
+                    mode,
+                    robust,
+                    ..*self.fusion.config()
+                });
+            }
+            Command::CalBegin { len, crc } => {
+                if len == 0 || usize::from(len) > CAL_UPLOAD_MAX {
+                    return Err(Reject::BadArgument);
+                }
+                self.upload = Upload {
+                    len,
+                    crc,
+                    received: 0,
+                    active: true,
+                    ..self.upload
+                };
+            }
+            Command::CalChunk { offset, data } => {
+                let u = &mut self.upload;
+                if !u.active {
+                    return Err(Reject::CalNotStarted);
+                }
+                if offset != u.received {
+                    return Err(Reject::CalOffset(u.received));
+                }
+                let end = usize::from(offset) + data.len();
+                if end > usize::from(u.len) {
+                    return Err(Reject::CalOverflow);
+                }
+                u.buf
+                    .get_mut(usize::from(offset)..end)
+                    .ok_or(Reject::CalOverflow)?
+                    .copy_from_slice(&data);
+                u.received = end as u16;
+            }
+            Command::CalCommit => {
+                let u = &self.upload;
+                if !u.active {
+                    return Err(Reject::CalNotStarted);
+                }
+                let bytes = u
+                    .buf
+                    .get(..usize::from(u.len))
+                    .ok_or(Reject::CalIncomplete)?;
+                if u.received != u.len || crc32c(bytes) != u.crc {
+                    return Err(Reject::CalIncomplete);
+                }
+                let table = CalibrationTable::decode(bytes).map_err(Reject::Cal)?;
+                self.upload.active = false;
+                self.load_calibration(table, CalSource::Uploaded);
+                self.push(Output::PersistCalibration);
+            }
+            Command::AllanRequest { first, count } => {
+                let end = (usize::from(first) + usize::from(count)).min(ALLAN_CHANNELS);
+                if usize::from(first) >= ALLAN_CHANNELS || count == 0 {
+                    return Err(Reject::BadArgument);
+                }
+                self.cursor.allan = Some((first, 0, end as u8));
+            }
+            Command::AllanReset => self.allan.iter_mut().for_each(AllanAccumulator::reset),
+            Command::HealthRequest { detail } => {
+                let h = self.health();
+                self.push(Output::Telemetry(Telemetry::Health(h)));
+                if detail {
+                    self.cursor.faults = Some(0);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The largest chunk of a calibration upload (re-exported for the ground's uploader).
+pub const CAL_CHUNK: usize = CAL_CHUNK_MAX;
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,415 @@
+//! Telemetry (MCU → ground) and commands (ground → MCU): postcard messages in a versioned envelope
+//! (spec: `docs/telemetry.md`).
+//!
+//! Every message on the bus is `[PROTOCOL_VERSION: u8] ++ postcard(body)`; for commands the body is
+//! `CommandEnvelope { tag, cmd }`, for telemetry it is [`Telemetry`]. Decoding any byte string returns a message or
+//! a typed [`DecodeError`]; it never panics (property-tested).
+
+use crate::allan::AllanLevel;
+use crate::calib::CalError;
+use crate::fuse::{FaultCounts, FusionMode, HealthMask};
+use crate::wire::LinkCounters;
+use serde::{Deserialize, Serialize, de::DeserializeOwned};
+
+/// Version of the message set; the first byte of every message.
+pub const PROTOCOL_VERSION: u8 = 1;
+/// Largest calibration chunk in one command, bytes.
+pub const CAL_CHUNK_MAX: usize = 192;
+/// Largest encoded message, bytes (fits libcsp's default KISS MTU with room to spare).
+pub const MAX_MESSAGE_LEN: usize = 232;
+
+/// A fused output sample: the running mean over one output interval.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FusedReport {
+    /// Output sequence number, +1 per report.
+    pub seq: u32,
+    /// Time of the interval's first frame since the pipeline started, µs (from the frame sequence counter).
+    pub t_us: u64,
+    /// Frames averaged into this report.
+    pub frames: u16,
+    /// Mean rates x, y, z, µ°/s.
+    pub rate_udps: [i32; 3],
+    /// Mean specific force x, y, z, µg.
+    pub accel_ug: [i32; 3],
+    /// Fewest sensors used in any frame of the interval, per axis (gx gy gz ax ay az); 0 = axis invalid.
+    pub used: [u8; 6],
+    /// Sensors left out in any frame of the interval.
+    pub health: HealthMask,
+    /// Mean board temperature, 0.01 °C, when the frames carried it.
+    pub temp_cdeg: Option<i16>,
+}
+
+/// One level of one Allan channel. The ground computes `σ²(τ) = sum_sq / (2 · count · m²)`, m = 2^level,
+/// τ = m · τ₀, in the channel's unit squared (channels 0..96: group g = ch / 6, axis ch % 6 in `calib::GX…AZ`
+/// order; 96..102: the fused axes).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct AllanReport {
+    /// Channel number.
+    pub channel: u8,
+    /// Sample interval τ₀ of the accumulator, picoseconds.
+    pub tau0_ps: u64,
+    /// Samples accumulated so far.
+    pub samples: u64,
+    /// The level's statistics.
+    pub level: AllanLevel,
+}
+
+/// How the calibration in use was obtained.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CalSource {
+    /// Built-in nominal values (no valid stored record).
+    Factory,
+    /// Loaded from flash at boot.
+    Stored,
+    /// Uploaded and committed in this session.
+    Uploaded,
+}
+
+/// Periodic and on-request health.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct HealthReport {
+    /// Time since boot, ms (set by the platform).
+    pub uptime_ms: u64,
+    /// FPGA link statistics.
+    pub link: LinkCounters,
+    /// Calibration id in use (0 = factory).
+    pub cal_id: u32,
+    /// Where it came from.
+    pub cal_source: CalSource,
+    /// FPGA decimation seen in the last frame (`None` before the first frame).
+    pub decimation: Option<u16>,
+    /// Frames per output interval.
+    pub frames_per_output: u16,
+    /// Fusion mode.
+    pub fusion: FusionMode,
+    /// Fault exclusion on.
+    pub robust: bool,
+    /// Sensor-samples left out since boot, summed over groups: gyro, accel (details in [`FaultReport`]).
+    pub faults: [FaultCounts; 2],
+    /// Frames whose fused sample had an invalid axis.
+    pub invalid_frames: u32,
+    /// Samples in each Allan accumulator.
+    pub allan_samples: u64,
+    /// Telemetry messages dropped because the outbox was full.
+    pub telemetry_dropped: u32,
+    /// Commands accepted / rejected.
+    pub commands: [u32; 2],
+}
+
+/// Fault counters of one group (sent after a health request with `detail`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FaultReport {
+    /// Group number.
+    pub group: u8,
+    /// Gyro faults.
+    pub gyro: FaultCounts,
+    /// Accelerometer faults.
+    pub accel: FaultCounts,
+}
+
+/// Why a command was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Reject {
+    /// Unknown protocol version (the one received).
+    Version(u8),
+    /// The bytes are not a command.
+    Malformed,
+    /// An argument is out of range.
+    BadArgument,
+    /// A chunk or commit without a begun upload.
+    CalNotStarted,
+    /// A chunk not at the next expected offset (the expected one).
+    CalOffset(u16),
+    /// Chunks beyond the announced length.
+    CalOverflow,
+    /// Commit before all bytes arrived, or their CRC differs from the announced one.
+    CalIncomplete,
+    /// The uploaded table is invalid.
+    Cal(CalError),
+}
+
+/// Answer to every command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Ack {
+    /// The command's tag (0 when it could not be read).
+    pub tag: u16,
+    /// Accepted, or why not.
+    pub result: Result<(), Reject>,
+}
+
+/// Everything the MCU sends.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Telemetry {
+    /// A fused output sample.
+    Fused(FusedReport),
+    /// An Allan level.
+    Allan(AllanReport),
+    /// Health.
+    Health(HealthReport),
+    /// Fault counters of one group.
+    Faults(FaultReport),
+    /// Answer to a command.
+    Ack(Ack),
+}
+
+/// Everything the ground can ask.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Command {
+    /// Liveness check; answered by an ack.
+    Ping,
+    /// Set the FPGA decimation N (keep 1 data set of N + 1).
+    SetDecimation(u16),
+    /// Frames averaged per output (1 ..= 4096).
+    SetOutputRate(u16),
+    /// Fusion mode and fault exclusion.
+    SetFusion {
+        /// Averaging rule.
+        mode: FusionMode,
+        /// Fault exclusion on.
+        robust: bool,
+    },
+    /// Start a calibration upload of `len` bytes (an encoded table) whose CRC-32C is `crc`.
+    CalBegin {
+        /// Total bytes.
+        len: u16,
+        /// CRC-32C of all bytes.
+        crc: u32,
+    },
+    /// Bytes of the upload at `offset` (chunks in order).
+    CalChunk {
+        /// Offset of the first byte.
+        offset: u16,
+        /// The bytes.
+        data: heapless::Vec<u8, CAL_CHUNK_MAX>,
+    },
+    /// Check, apply and persist the uploaded table.
+    CalCommit,
+    /// Send the Allan levels of `count` channels from `first`.
+    AllanRequest {
+        /// First channel.
+        first: u8,
+        /// Number of channels.
+        count: u8,
+    },
+    /// Restart all Allan accumulators.
+    AllanReset,
+    /// Send a health report now; with `detail`, the per-group fault counters too.
+    HealthRequest {
+        /// Also send one [`FaultReport`] per group.
+        detail: bool,
+    },
+}
+
+/// A command with the tag its ack will carry.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CommandEnvelope {
+    /// Chosen by the ground, echoed in the ack.
+    pub tag: u16,
+    /// The command.
+    pub cmd: Command,
+}
+
+/// Why bytes are not a message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DecodeError {
+    /// No bytes.
+    Empty,
+    /// Another protocol version (the one received).
+    Version(u8),
+    /// The body does not parse, or bytes are left over.
+    Malformed,
+}
+
+/// Why a message could not be encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BufferTooSmall;
+
+/// Writes `[PROTOCOL_VERSION] ++ postcard(msg)` into `buf`; returns the used part.
+pub fn encode<'a, T: Serialize>(msg: &T, buf: &'a mut [u8]) -> Result<&'a [u8], BufferTooSmall> {
+    let (first, rest) = buf.split_first_mut().ok_or(BufferTooSmall)?;
+    *first = PROTOCOL_VERSION;
+    let n = postcard::to_slice(msg, rest)
+        .map_err(|_| BufferTooSmall)?
+        .len();
+    buf.get(..1 + n).ok_or(BufferTooSmall)
+}
+
+/// Reads a message written by [`encode`].
+pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, DecodeError> {
+    let (&version, body) = bytes.split_first().ok_or(DecodeError::Empty)?;
+    if version != PROTOCOL_VERSION {
+        return Err(DecodeError::Version(version));
+    }
+    match postcard::take_from_bytes::<T>(body) {
+        Ok((msg, [])) => Ok(msg),
+        _ => Err(DecodeError::Malformed),
+    }
+}
+
+/// The tag of a command that may not decode as a whole (for the rejection's ack); 0 when unreadable.
+pub fn peek_tag(bytes: &[u8]) -> u16 {
+    bytes
+        .get(1..)
+        .and_then(|b| postcard::take_from_bytes::<u16>(b).ok())
+        .map_or(0, |(tag, _)| tag)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fuse::SensorFaults;
+    use proptest::prelude::*;
+
+    fn roundtrip<T: Serialize + DeserializeOwned + PartialEq + core::fmt::Debug>(msg: &T) -> usize {
+        let mut buf = [0u8; 512];
+        let bytes = encode(msg, &mut buf).unwrap();
+        assert_eq!(bytes[0], PROTOCOL_VERSION);
+        assert_eq!(decode::<T>(bytes).as_ref(), Ok(msg));
+        bytes.len()
+    }
+
+    fn largest_telemetry() -> [Telemetry; 3] {
+        let faults = FaultCounts {
+            saturated: u32::MAX,
+            stuck: u32::MAX,
+            outlier: u32::MAX,
+        };
+        let mask = SensorFaults {
+            saturated: u32::MAX,
+            stuck: u32::MAX,
+            outlier: u32::MAX,
+        };
+        [
+            Telemetry::Fused(FusedReport {
+                seq: u32::MAX,
+                t_us: u64::MAX,
+                frames: u16::MAX,
+                rate_udps: [i32::MIN; 3],
+                accel_ug: [i32::MIN; 3],
+                used: [u8::MAX; 6],
+                health: HealthMask {
+                    gyro: mask,
+                    accel: mask,
+                },
+                temp_cdeg: Some(i16::MIN),
+            }),
+            Telemetry::Allan(AllanReport {
+                channel: u8::MAX,
+                tau0_ps: u64::MAX,
+                samples: u64::MAX,
+                level: AllanLevel {
+                    level: 23,
+                    count: u32::MAX,
+                    sum_sq: u128::MAX,
+                },
+            }),
+            Telemetry::Health(HealthReport {
+                uptime_ms: u64::MAX,
+                link: LinkCounters {
+                    frames: u32::MAX,
+                    crc_errors: u32::MAX,
+                    resyncs: u32::MAX,
+                    bytes_skipped: u32::MAX,
+                    frames_dropped: u32::MAX,
+                    seq_restarts: u32::MAX,
+                    overruns: u32::MAX,
+                },
+                cal_id: u32::MAX,
+                cal_source: CalSource::Uploaded,
+                decimation: Some(u16::MAX),
+                frames_per_output: u16::MAX,
+                fusion: FusionMode::InverseVariance,
+                robust: true,
+                faults: [faults; 2],
+                invalid_frames: u32::MAX,
+                allan_samples: u64::MAX,
+                telemetry_dropped: u32::MAX,
+                commands: [u32::MAX; 2],
+            }),
+        ]
+    }
+
+    #[test]
+    fn every_message_round_trips_and_fits_the_mtu() {
+        for msg in largest_telemetry() {
+            let n = roundtrip(&msg);
+            assert!(n <= MAX_MESSAGE_LEN, "{n} bytes: {msg:?}");
+        }
+        roundtrip(&Telemetry::Ack(Ack {
+            tag: 7,
+            result: Err(Reject::Cal(CalError::Crc)),
+        }));
+        let data = heapless::Vec::from_slice(&[0xAB; CAL_CHUNK_MAX]).unwrap();
+        let chunk = CommandEnvelope {
+            tag: u16::MAX,
+            cmd: Command::CalChunk {
+                offset: u16::MAX,
+                data,
+            },
+        };
+        assert!(roundtrip(&chunk) <= MAX_MESSAGE_LEN);
+        roundtrip(&CommandEnvelope {
+            tag: 1,
+            cmd: Command::SetFusion {
+                mode: FusionMode::Equal,
+                robust: false,
+            },
+        });
+    }
+
+    #[test]
+    fn known_encoding() {
+        // version 1, tag 300 = varint AC 02, variant 1 (SetDecimation), 15.
+        let mut buf = [0u8; 16];
+        let bytes = encode(
+            &CommandEnvelope {
+                tag: 300,
+                cmd: Command::SetDecimation(15),
+            },
+            &mut buf,
+        )
+        .unwrap();
+        assert_eq!(bytes, [1, 0xAC, 0x02, 1, 15]);
+        assert_eq!(peek_tag(bytes), 300);
+    }
+
+    #[test]
+    fn typed_errors() {
+        assert_eq!(decode::<CommandEnvelope>(&[]), Err(DecodeError::Empty));
+        assert_eq!(
+            decode::<CommandEnvelope>(&[2, 0, 0]),
+            Err(DecodeError::Version(2))
+        );
+        assert_eq!(
+            decode::<CommandEnvelope>(&[1, 0, 0, 0]),
+            Err(DecodeError::Malformed)
+        ); // trailing byte
+        assert_eq!(
+            decode::<CommandEnvelope>(&[1, 0, 99]),
+            Err(DecodeError::Malformed)
+        ); // no such command
+        let mut long = [0u8; 8];
+        long[..4].copy_from_slice(&[1, 0, 5, 200]); // CalChunk with a 200-byte vector announced
+        assert_eq!(
+            decode::<CommandEnvelope>(&long),
+            Err(DecodeError::Malformed)
+        );
+        assert_eq!(encode(&Command::Ping, &mut []), Err(BufferTooSmall));
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(5000))]
+        #[test]
+        fn arbitrary_bytes_never_panic(mut bytes in proptest::collection::vec(any::<u8>(), 0..300)) {
+            let _ = decode::<Telemetry>(&bytes);
+            if let Some(b) = bytes.first_mut() { *b = PROTOCOL_VERSION; }
+            let _ = decode::<CommandEnvelope>(&bytes);
+            let _ = decode::<Telemetry>(&bytes);
+            let _ = peek_tag(&bytes);
+        }
+    }
+}
