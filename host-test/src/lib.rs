@@ -1,1 +1,5 @@
 //! Host side of the IMU cluster: replay of recorded frames through `shared`, ground decoding, and the `ground` tool.
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod allan;

@@ -1,0 +1,93 @@
+//! Chi-squared confidence intervals for a deviation.
+
+use statrs::distribution::{ChiSquared, Continuous, ContinuousCDF};
+
+/// Two-sided confidence of ±1 σ of a normal law, `erf(1/√2) = 0.682689…`
+/// (allantools' default; Stable32 prints "Confidence Factor = 0.683").
+pub const ONE_SIGMA_CI: f64 = 0.682_689_492_137_085_9;
+
+/// Confidence interval `(dev_lo, dev_hi)` of a deviation `dev` with `edf` equivalent
+/// degrees of freedom and two-sided confidence `ci` (e.g. [`ONE_SIGMA_CI`]), the form of
+/// NIST SP 1065 eq. (45) as used by allantools `confidence_interval`:
+///
+/// ```text
+/// p_lo = min(ci, 1 − ci)/2,  p_hi = 1 − p_lo
+/// dev_lo = dev · sqrt(edf / χ²⁻¹(p_hi; edf)),  dev_hi = dev · sqrt(edf / χ²⁻¹(p_lo; edf))
+/// ```
+///
+/// `dev_lo`/`dev_hi` are in the unit of `dev`. `None` if `dev` is negative or not finite,
+/// `edf` not positive and finite, `ci` not strictly between 0 and 1, or the quantiles
+/// are numerically degenerate.
+pub fn confidence_interval(dev: f64, edf: f64, ci: f64) -> Option<(f64, f64)> {
+    if !(dev.is_finite() && dev >= 0.0 && edf.is_finite() && edf > 0.0) {
+        return None;
+    }
+    if !(ci > 0.0 && ci < 1.0) {
+        return None;
+    }
+    let p_lo = ci.min(1.0 - ci) / 2.0;
+    let p_hi = 1.0 - p_lo;
+    let chi2 = ChiSquared::new(edf).ok()?;
+    let q_lo = chi2_quantile(&chi2, p_lo)?;
+    let q_hi = chi2_quantile(&chi2, p_hi)?;
+    if !(q_lo > 0.0 && q_hi.is_finite()) {
+        return None;
+    }
+    let var = dev * dev;
+    let (lo, hi) = ((edf * var / q_hi).sqrt(), (edf * var / q_lo).sqrt());
+    // Degenerate edf (e.g. 1e-300) can make the quantiles meaningless: refuse.
+    (lo.is_finite() && hi.is_finite() && lo <= dev && dev <= hi).then_some((lo, hi))
+}
+
+/// Chi-squared quantile: `statrs`' bracketed Newton solution, polished by up to three
+/// further Newton steps (statrs stops once a step is below 1e-9 *absolute*, which leaves
+/// ~1e-10 relative error for quantiles of order 1–10).
+fn chi2_quantile(chi2: &ChiSquared, p: f64) -> Option<f64> {
+    let mut x = chi2.inverse_cdf(p);
+    for _ in 0..3 {
+        let pdf = chi2.pdf(x);
+        if !(x > 0.0 && x.is_finite() && pdf > 0.0) {
+            break;
+        }
+        let step = (chi2.cdf(x) - p) / pdf;
+        let next = x - step;
+        if !(next > 0.0 && next.is_finite()) {
+            break;
+        }
+        x = next;
+        if step.abs() <= 1e-15 * x {
+            break;
+        }
+    }
+    (x > 0.0 && x.is_finite()).then_some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_sigma_constant() {
+        // erf(1/sqrt 2) to 16 digits
+        assert!((ONE_SIGMA_CI - 0.682_689_492_137_086).abs() < 1e-15);
+    }
+
+    #[test]
+    fn interval_brackets_dev_and_shrinks_with_edf() {
+        let (lo1, hi1) = confidence_interval(1.0, 10.0, ONE_SIGMA_CI).unwrap();
+        let (lo2, hi2) = confidence_interval(1.0, 1000.0, ONE_SIGMA_CI).unwrap();
+        assert!(lo1 < lo2 && lo2 < 1.0 && 1.0 < hi2 && hi2 < hi1);
+        // large edf: relative half-width ≈ 1/sqrt(2 edf)
+        assert!(((hi2 - lo2) / 2.0 - 1.0 / (2000f64).sqrt()).abs() < 1e-3);
+    }
+
+    #[test]
+    fn bad_input() {
+        assert!(confidence_interval(1.0, 0.0, 0.68).is_none());
+        assert!(confidence_interval(1.0, f64::NAN, 0.68).is_none());
+        assert!(confidence_interval(-1.0, 5.0, 0.68).is_none());
+        assert!(confidence_interval(1.0, 5.0, 1.0).is_none());
+        assert!(confidence_interval(1.0, 5.0, 0.0).is_none());
+        assert_eq!(confidence_interval(0.0, 5.0, 0.68), Some((0.0, 0.0)));
+    }
+}
