@@ -8,11 +8,13 @@
 #![deny(missing_docs)]
 
 pub mod allan;
+pub mod bus;
 pub mod calib;
 pub mod crc;
 pub mod fuse;
 pub mod pipeline;
 pub mod serde_array;
+pub mod storage;
 pub mod telemetry;
 #[cfg(test)]
 mod testutil;

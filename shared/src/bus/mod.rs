@@ -1,0 +1,187 @@
+//! The CubeSat bus: CSP v1 packets in KISS frames, carrying the postcard messages of [`crate::telemetry`]
+//! (spec: `docs/bus.md`). [`BusNode`] is the sans-IO endpoint: bus bytes in, command and ping events out;
+//! telemetry payloads in, KISS frames out. The firmware only moves bytes.
+
+pub mod csp;
+pub mod kiss;
+
+use csp::{CspError, CspHeader, CspPacket, PORT_PING};
+use kiss::{KissDecoder, KissError};
+
+/// Largest decoded KISS frame: header, 248 bytes of payload, link CRC (what every libcsp 1.x accepts by default).
+pub const MAX_FRAME: usize = 256;
+/// Largest payload we send or accept.
+pub const MAX_PAYLOAD: usize = MAX_FRAME - csp::HEADER_LEN - 2 * csp::CRC_LEN;
+/// Largest encoded KISS frame on the wire.
+pub const MAX_WIRE_FRAME: usize = kiss::encoded_len_max(MAX_FRAME);
+
+/// Addresses and ports of this node.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BusConfig {
+    /// Our CSP address.
+    pub addr: u8,
+    /// The ground station's address (destination of telemetry).
+    pub ground_addr: u8,
+    /// Ground port that receives telemetry (acks included).
+    pub telemetry_port: u8,
+    /// Our port that receives commands.
+    pub command_port: u8,
+    /// Priority of telemetry packets.
+    pub prio: u8,
+}
+
+impl BusConfig {
+    /// Defaults: we are node 10, the ground node 1; telemetry to port 10, commands on port 11, normal priority.
+    pub const DEFAULT: Self = Self {
+        addr: 10,
+        ground_addr: 1,
+        telemetry_port: 10,
+        command_port: 11,
+        prio: 2,
+    };
+}
+
+/// What arrived for us.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BusEvent<'a> {
+    /// A command message (payload for `Pipeline::handle_command`).
+    Command(&'a [u8]),
+    /// A ping: answer with [`BusNode::encode_reply`] and the same payload.
+    Ping {
+        /// The request's header.
+        header: CspHeader,
+        /// Its payload.
+        payload: &'a [u8],
+    },
+}
+
+/// Bus statistics (wrapping u32).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BusCounters {
+    /// Valid packets for us.
+    pub packets: u32,
+    /// KISS frames dropped (bad escape, command byte, oversize).
+    pub kiss_errors: u32,
+    /// CSP packets dropped (too short, CRC, unsupported flags).
+    pub csp_errors: u32,
+    /// Valid packets for another address or an unserved port.
+    pub ignored: u32,
+}
+
+/// The sans-IO bus endpoint.
+#[derive(Clone, Debug)]
+pub struct BusNode {
+    config: BusConfig,
+    kiss: KissDecoder<MAX_FRAME>,
+    counters: BusCounters,
+}
+
+enum Kind {
+    Command,
+    Ping(CspHeader),
+}
+
+impl BusNode {
+    /// An endpoint with `config`.
+    pub const fn new(config: BusConfig) -> Self {
+        Self {
+            config,
+            kiss: KissDecoder::new(),
+            counters: BusCounters {
+                packets: 0,
+                kiss_errors: 0,
+                csp_errors: 0,
+                ignored: 0,
+            },
+        }
+    }
+
+    /// Statistics.
+    pub fn counters(&self) -> &BusCounters {
+        &self.counters
+    }
+
+    /// Consumes bus bytes until an event for us (returned) or the end of `input` (`None`).
+    pub fn receive<'a>(&'a mut self, input: &mut &[u8]) -> Option<BusEvent<'a>> {
+        let kind = loop {
+            let frame = match self.kiss.decode(input)? {
+                Ok(frame) => frame,
+                Err(_) => {
+                    self.counters.kiss_errors = self.counters.kiss_errors.wrapping_add(1);
+                    continue;
+                }
+            };
+            match CspPacket::parse(frame) {
+                Ok(p)
+                    if p.header.dst == self.config.addr
+                        && p.header.dport == self.config.command_port =>
+                {
+                    break Kind::Command;
+                }
+                Ok(p) if p.header.dst == self.config.addr && p.header.dport == PORT_PING => {
+                    break Kind::Ping(p.header);
+                }
+                Ok(_) => self.counters.ignored = self.counters.ignored.wrapping_add(1),
+                Err(_) => self.counters.csp_errors = self.counters.csp_errors.wrapping_add(1),
+            }
+        };
+        self.counters.packets = self.counters.packets.wrapping_add(1);
+        // Parsed again from the decoder's buffer: the borrow above ended with the loop.
+        let payload = CspPacket::parse(self.kiss.last_frame()).map_or(&[][..], |p| p.payload);
+        Some(match kind {
+            Kind::Command => BusEvent::Command(payload),
+            Kind::Ping(header) => BusEvent::Ping { header, payload },
+        })
+    }
+
+    /// A telemetry packet (to the ground's telemetry port) as a KISS frame in `out`; returns its length.
+    pub fn encode_telemetry(&self, payload: &[u8], out: &mut [u8]) -> Result<usize, CspError> {
+        let c = &self.config;
+        let header = CspHeader {
+            prio: c.prio,
+            src: c.addr,
+            dst: c.ground_addr,
+            dport: c.telemetry_port,
+            sport: c.command_port,
+            flags: 0,
+        };
+        self.encode(&header, payload, out)
+    }
+
+    /// The reply to `request` (ping echo) as a KISS frame in `out`.
+    pub fn encode_reply(
+        &self,
+        request: &CspHeader,
+        payload: &[u8],
+        out: &mut [u8],
+    ) -> Result<usize, CspError> {
+        self.encode(&request.reply(), payload, out)
+    }
+
+    fn encode(
+        &self,
+        header: &CspHeader,
+        payload: &[u8],
+        out: &mut [u8],
+    ) -> Result<usize, CspError> {
+        if payload.len() > MAX_PAYLOAD {
+            return Err(CspError::Invalid);
+        }
+        CspPacket::emit_kiss(header, payload, out)
+    }
+}
+
+/// Errors from the bus layers, for logs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BusError {
+    /// KISS layer.
+    Kiss(KissError),
+    /// CSP layer.
+    Csp(CspError),
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,241 @@
+//! Known-answer vectors computed from libcsp 1.x's sources (csp_if_kiss.c, csp_crc32.c, csp_types.h): see
+//! `docs/bus.md`.
+use super::csp::*;
+use super::kiss::*;
+use super::*;
+use proptest::prelude::*;
+
+extern crate std;
+use std::vec::Vec;
+
+fn hex(s: &str) -> Vec<u8> {
+    s.split_whitespace()
+        .map(|h| u8::from_str_radix(h, 16).unwrap())
+        .collect()
+}
+
+fn node() -> BusNode {
+    BusNode::new(BusConfig {
+        addr: 10,
+        ..BusConfig::DEFAULT
+    })
+}
+
+#[test]
+fn header_vectors() {
+    let cases = [
+        ((2, 1, 10, 10, 33, 0x01), "82 A2 A1 01"),
+        ((2, 1, 10, 1, 33, 0), "82 A0 61 00"),
+        ((2, 10, 1, 33, 1, 0), "94 18 41 00"),
+        ((3, 0, 1, 1, 56, 0), "C0 10 78 00"),
+        ((2, 22, 10, 1, 57, 0x01), "AC A0 79 01"),
+    ];
+    for ((prio, src, dst, dport, sport, flags), wire) in cases {
+        let h = CspHeader {
+            prio,
+            src,
+            dst,
+            dport,
+            sport,
+            flags,
+        };
+        assert_eq!(h.emit().unwrap().to_vec(), hex(wire));
+        assert_eq!(CspHeader::parse(&hex(wire)), Ok(h));
+    }
+    assert_eq!(
+        CspHeader {
+            prio: 4,
+            src: 0,
+            dst: 0,
+            dport: 0,
+            sport: 0,
+            flags: 0
+        }
+        .emit(),
+        Err(CspError::Invalid)
+    );
+}
+
+#[test]
+fn crc_vectors() {
+    // libcsp appends CRC-32C big-endian.
+    assert_eq!(
+        crate::crc::crc32c(&[0, 1, 2, 3]).to_be_bytes(),
+        [0xD9, 0x33, 0x1A, 0xA3]
+    );
+    assert_eq!(crate::crc::crc32c(&[0]), 0x527D_5351);
+}
+
+fn one_event(n: &mut BusNode, wire: &[u8]) -> Option<(Option<CspHeader>, Vec<u8>)> {
+    let mut input = wire;
+    let ev = n.receive(&mut input).map(|e| match e {
+        BusEvent::Command(p) => (None, p.to_vec()),
+        BusEvent::Ping { header, payload } => (Some(header), payload.to_vec()),
+    });
+    assert!(input.is_empty() || ev.is_some());
+    ev
+}
+
+#[test]
+fn ping_is_echoed_like_libcsp() {
+    for (req, reply) in [
+        (
+            "C0 00 82 A0 61 00 00 01 02 03 D9 33 1A A3 C0",
+            "C0 00 94 18 41 00 00 01 02 03 D9 33 1A A3 C0",
+        ),
+        (
+            "C0 00 82 A0 61 01 00 01 02 03 D9 33 1A A3 03 B0 62 A6 C0",
+            "C0 00 94 18 41 01 00 01 02 03 D9 33 1A A3 03 B0 62 A6 C0",
+        ),
+    ] {
+        let mut n = node();
+        let (header, payload) = one_event(&mut n, &hex(req)).unwrap();
+        let header = header.expect("a ping");
+        assert_eq!(payload, [0, 1, 2, 3]);
+        let mut out = [0u8; MAX_WIRE_FRAME];
+        let len = n.encode_reply(&header, &payload, &mut out).unwrap();
+        assert_eq!(out[..len].to_vec(), hex(reply));
+    }
+}
+
+#[test]
+fn escaping_and_empty_payload_vectors() {
+    let h = CspHeader {
+        prio: 3,
+        src: 0,
+        dst: 1,
+        dport: 1,
+        sport: 56,
+        flags: 0,
+    };
+    let mut out = [0u8; 64];
+    let n = CspPacket::emit_kiss(&h, &[0xC0, 0xDB], &mut out).unwrap();
+    assert_eq!(
+        out[..n].to_vec(),
+        hex("C0 00 DB DC 10 78 00 DB DC DB DD BF EF 01 BF C0")
+    );
+    let h = CspHeader {
+        prio: 2,
+        src: 1,
+        dst: 10,
+        dport: 10,
+        sport: 33,
+        flags: 0,
+    };
+    let n = CspPacket::emit_kiss(&h, &[], &mut out).unwrap();
+    assert_eq!(out[..n].to_vec(), hex("C0 00 82 A2 A1 00 00 00 00 00 C0"));
+    // Decoding the escaped frame gives back header and payload.
+    let mut dec = KissDecoder::<64>::new();
+    let mut input = &hex("C0 00 DB DC 10 78 00 DB DC DB DD BF EF 01 BF C0")[..];
+    let frame = dec.decode(&mut input).unwrap().unwrap();
+    let p = CspPacket::parse(frame).unwrap();
+    assert_eq!((p.header.dport, p.payload), (1, &[0xC0, 0xDB][..]));
+}
+
+#[test]
+fn commands_reach_us_and_telemetry_goes_to_the_ground() {
+    let mut n = node();
+    let to_us = CspHeader {
+        prio: 2,
+        src: 1,
+        dst: 10,
+        dport: 11,
+        sport: 40,
+        flags: 0,
+    };
+    let mut wire = [0u8; MAX_WIRE_FRAME];
+    let len = CspPacket::emit_kiss(&to_us, b"cmd", &mut wire).unwrap();
+    assert_eq!(
+        one_event(&mut n, &wire[..len]),
+        Some((None, b"cmd".to_vec()))
+    );
+    let elsewhere = CspHeader { dst: 11, ..to_us };
+    let len = CspPacket::emit_kiss(&elsewhere, b"cmd", &mut wire).unwrap();
+    assert_eq!(one_event(&mut n, &wire[..len]), None);
+    assert_eq!(n.counters().ignored, 1);
+
+    let len = n.encode_telemetry(b"tm", &mut wire).unwrap();
+    let mut dec = KissDecoder::<MAX_FRAME>::new();
+    let mut input = &wire[..len];
+    let p = CspPacket::parse(dec.decode(&mut input).unwrap().unwrap()).unwrap();
+    assert_eq!(
+        (p.header.src, p.header.dst, p.header.dport, p.payload),
+        (10, 1, 10, &b"tm"[..])
+    );
+    assert_eq!(
+        n.encode_telemetry(&[0; MAX_PAYLOAD + 1], &mut wire),
+        Err(CspError::Invalid)
+    );
+}
+
+#[test]
+fn bad_frames_give_typed_errors() {
+    let mut dec = KissDecoder::<16>::new();
+    let mut run = |s: &str| {
+        let bytes = hex(s);
+        let mut input = &bytes[..];
+        let mut out = Vec::new();
+        while let Some(r) = dec.decode(&mut input) {
+            out.push(r.map(|f| f.to_vec()));
+        }
+        out
+    };
+    assert_eq!(run("C0 00 01 DB 55 02 C0"), [Err(KissError::BadEscape)]);
+    assert_eq!(run("C0 06 01 02 C0"), [Err(KissError::Command(6))]);
+    assert_eq!(
+        run("C0 00 00 01 02 03 04 05 06 07 08 09 0A 0B 0C 0D 0E 0F 10 C0"),
+        [Err(KissError::Oversize)]
+    );
+    assert_eq!(run("C0 C0 C0 00 07 C0"), [Ok(std::vec![7])]); // empty frames skipped
+    assert_eq!(
+        run("C0 00 01 DB C0 00 09 C0"),
+        [Err(KissError::BadEscape), Ok(std::vec![9])]
+    );
+    assert_eq!(
+        CspPacket::parse(&[1, 2, 3, 4, 5, 6, 7]),
+        Err(CspError::TooShort)
+    );
+    assert_eq!(
+        CspPacket::parse(&hex("82 A2 A1 00 00 00 00 01")),
+        Err(CspError::Crc)
+    );
+    assert_eq!(
+        CspPacket::parse(&hex("82 A2 A1 01 00 00 00 00")),
+        Err(CspError::InnerCrc)
+    );
+    assert_eq!(
+        CspPacket::parse(&hex("82 A2 A1 02 00 00 00 00")),
+        Err(CspError::Unsupported(FLAG_RDP))
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(2000))]
+
+    /// Round trip of arbitrary payloads through the whole stack, with garbage around the frames.
+    #[test]
+    fn payloads_round_trip_through_kiss_and_csp(payload in proptest::collection::vec(any::<u8>(), 0..MAX_PAYLOAD),
+                                               garbage in proptest::collection::vec(any::<u8>(), 0..40)) {
+        let mut n = node();
+        let to_us = CspHeader { prio: 1, src: 3, dst: 10, dport: 11, sport: 50, flags: FLAG_CRC32 };
+        let mut wire = [0u8; MAX_WIRE_FRAME];
+        let len = CspPacket::emit_kiss(&to_us, &payload, &mut wire).unwrap();
+        let mut stream: Vec<u8> = garbage.iter().copied().filter(|&b| b != FEND).collect();
+        stream.extend_from_slice(&wire[..len]);
+        stream.extend_from_slice(&garbage);
+        prop_assert_eq!(one_event(&mut n, &stream), Some((None, payload)));
+    }
+
+    /// Any bytes: a typed outcome, never a panic, and a following good frame still arrives.
+    #[test]
+    fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..600)) {
+        let mut n = node();
+        let mut input = &bytes[..];
+        while n.receive(&mut input).is_some() {}
+        let _ = CspPacket::parse(&bytes);
+        let mut wire = [0u8; MAX_WIRE_FRAME];
+        let h = CspHeader { prio: 2, src: 1, dst: 10, dport: 11, sport: 40, flags: 0 };
+        let len = CspPacket::emit_kiss(&h, b"after", &mut wire).unwrap();
+        prop_assert_eq!(one_event(&mut n, &wire[..len]), Some((None, b"after".to_vec())));
+    }
+}

@@ -1,0 +1,226 @@
+//! Calibration records in two flash slots, A and B, that survive a power cut at any point of an update
+//! (spec: `docs/storage.md`). Generic over the `embedded-storage` NOR-flash traits.
+//!
+//! Slot A is the first half of the flash region, slot B the second; each half is a whole number of erase blocks.
+//! A record, at the start of its slot:
+//!
+//! ```text
+//! offset  size  field
+//!      0     4  magic "CAL1" (0x314C4143 little-endian), written last
+//!      4     4  sequence number, u32 LE, +1 per update
+//!      8     4  payload length L, u32 LE
+//!     12     L  payload: an encoded `CalibrationTable` (which has its own CRC)
+//!   12+L     4  CRC-32C of bytes 0 .. 12+L (magic included)
+//! ```
+//! padded with 0xFF to the flash's write size. Boot loads the valid record with the higher sequence number; an
+//! update erases the *other* slot, writes everything but the magic, then the magic. A cut before the magic is
+//! written leaves that slot without a record; a cut inside an erase leaves garbage that fails the CRC; the old
+//! record is untouched either way. `tests::power_cut_at_every_step_always_loads_a_valid_calibration` cuts power at
+//! every single erase and word write of several consecutive updates.
+
+use crate::calib::CalibrationTable;
+use crate::crc::Crc32c;
+use embedded_storage::nor_flash::NorFlash;
+
+/// Record magic, "CAL1".
+pub const MAGIC: u32 = u32::from_le_bytes(*b"CAL1");
+const HEADER_LEN: usize = 12;
+const CRC_LEN: usize = 4;
+/// Bytes read or written per flash call (a multiple of every sane write size).
+const CHUNK: usize = 64;
+
+/// What a slot holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SlotState {
+    /// No magic: erased, or an update was cut before it completed.
+    Empty,
+    /// Magic present but length, CRC or contents invalid.
+    Invalid,
+    /// A valid record with this sequence number.
+    Valid(u32),
+}
+
+/// Why the store failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StoreError<E> {
+    /// The region cannot hold two slots of whole erase blocks, or the record does not fit a slot.
+    Geometry,
+    /// The table could not be encoded into the scratch buffer.
+    Encode,
+    /// The flash driver failed.
+    Flash(E),
+}
+
+/// The outcome of [`CalStore::load`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Loaded<const G: usize> {
+    /// The table to use: the newest valid record, or the factory default.
+    pub table: CalibrationTable<G>,
+    /// Sequence number of the record, `None` for the factory default.
+    pub seq: Option<u32>,
+    /// What each slot held: `[A, B]`.
+    pub slots: [SlotState; 2],
+}
+
+/// Two-slot calibration store over a NOR flash region.
+pub struct CalStore<F> {
+    flash: F,
+    slot_size: u32,
+}
+
+impl<F: NorFlash> CalStore<F> {
+    /// Uses the whole of `flash`: slot A its first half, slot B its second.
+    pub fn new(flash: F) -> Result<Self, StoreError<F::Error>> {
+        let slot_size = flash.capacity() / 2;
+        if slot_size == 0
+            || !slot_size.is_multiple_of(F::ERASE_SIZE)
+            || !CHUNK.is_multiple_of(F::WRITE_SIZE.max(1))
+        {
+            return Err(StoreError::Geometry);
+        }
+        Ok(Self {
+            flash,
+            slot_size: slot_size as u32,
+        })
+    }
+
+    /// Gives the flash back.
+    pub fn into_inner(self) -> F {
+        self.flash
+    }
+
+    fn base(&self, slot: usize) -> u32 {
+        if slot == 0 { 0 } else { self.slot_size }
+    }
+
+    /// Reads and checks `slot`; on success the payload is in `scratch[..len]`.
+    fn read_slot(
+        &mut self,
+        slot: usize,
+        scratch: &mut [u8],
+    ) -> Result<(SlotState, usize), F::Error> {
+        let base = self.base(slot);
+        let mut head = [0u8; HEADER_LEN];
+        self.flash.read(base, &mut head)?;
+        let word = |i: usize| u32::from_le_bytes([head[i], head[i + 1], head[i + 2], head[i + 3]]);
+        if word(0) != MAGIC {
+            return Ok((SlotState::Empty, 0));
+        }
+        let (seq, len) = (word(4), word(8) as usize);
+        let fits = HEADER_LEN + len + CRC_LEN <= self.slot_size as usize;
+        let Some(payload) = scratch.get_mut(..len).filter(|_| fits) else {
+            return Ok((SlotState::Invalid, 0));
+        };
+        let mut crc = Crc32c::new();
+        crc.update(&head);
+        let mut at = base + HEADER_LEN as u32;
+        for chunk in payload.chunks_mut(CHUNK) {
+            self.flash.read(at, chunk)?;
+            crc.update(chunk);
+            at += chunk.len() as u32;
+        }
+        let mut stored = [0u8; CRC_LEN];
+        self.flash.read(at, &mut stored)?;
+        if crc.finish() != u32::from_le_bytes(stored) {
+            return Ok((SlotState::Invalid, 0));
+        }
+        Ok((SlotState::Valid(seq), len))
+    }
+
+    /// Loads the newest valid calibration, or the factory default if no slot holds one. `scratch` must hold an
+    /// encoded table (`calib::encoded_len_max(G)` bytes).
+    pub fn load<const G: usize>(&mut self, scratch: &mut [u8]) -> Result<Loaded<G>, F::Error> {
+        let mut slots = [SlotState::Empty; 2];
+        let mut best: Option<(u32, CalibrationTable<G>)> = None;
+        for (slot, state) in slots.iter_mut().enumerate() {
+            let (s, len) = self.read_slot(slot, scratch)?;
+            *state = s;
+            if let SlotState::Valid(seq) = s {
+                match scratch.get(..len).map(CalibrationTable::<G>::decode) {
+                    Some(Ok(table)) => {
+                        if best.is_none_or(|(b, _)| seq > b) {
+                            best = Some((seq, table));
+                        }
+                    }
+                    _ => *state = SlotState::Invalid,
+                }
+            }
+        }
+        Ok(match best {
+            Some((seq, table)) => Loaded {
+                table,
+                seq: Some(seq),
+                slots,
+            },
+            None => Loaded {
+                table: CalibrationTable::factory(),
+                seq: None,
+                slots,
+            },
+        })
+    }
+
+    /// Writes `table` as the new newest record into the slot that does not hold the current one; returns its
+    /// sequence number. `scratch` must hold the record (header + encoded table + CRC).
+    pub fn store<const G: usize>(
+        &mut self,
+        table: &CalibrationTable<G>,
+        scratch: &mut [u8],
+    ) -> Result<u32, StoreError<F::Error>> {
+        // Which slot is current (the higher valid sequence number)?
+        let mut seqs = [None; 2];
+        for (slot, s) in seqs.iter_mut().enumerate() {
+            if let (SlotState::Valid(seq), _) =
+                self.read_slot(slot, scratch).map_err(StoreError::Flash)?
+            {
+                *s = Some(seq);
+            }
+        }
+        let (target, seq) = match seqs {
+            [Some(a), Some(b)] if a >= b => (1, a.wrapping_add(1)),
+            [Some(_), Some(b)] => (0, b.wrapping_add(1)),
+            [Some(a), None] => (1, a.wrapping_add(1)),
+            [None, Some(b)] => (0, b.wrapping_add(1)),
+            [None, None] => (0, 1),
+        };
+
+        // Build the record in scratch, padded to the write size.
+        let len = {
+            let body = scratch.get_mut(HEADER_LEN..).ok_or(StoreError::Encode)?;
+            table.encode(body).map_err(|_| StoreError::Encode)?.len()
+        };
+        let end = HEADER_LEN + len + CRC_LEN;
+        let padded = end.div_ceil(F::WRITE_SIZE.max(1)) * F::WRITE_SIZE.max(1);
+        if padded > self.slot_size as usize {
+            return Err(StoreError::Geometry);
+        }
+        let record = scratch.get_mut(..padded).ok_or(StoreError::Encode)?;
+        record[..4].copy_from_slice(&MAGIC.to_le_bytes());
+        record[4..8].copy_from_slice(&seq.to_le_bytes());
+        record[8..12].copy_from_slice(&(len as u32).to_le_bytes());
+        let mut crc = Crc32c::new();
+        crc.update(&record[..HEADER_LEN + len]);
+        record[HEADER_LEN + len..end].copy_from_slice(&crc.finish().to_le_bytes());
+        record[end..].fill(0xFF);
+
+        // Erase, write all but the magic, then the magic.
+        let base = self.base(target);
+        self.flash
+            .erase(base, base + self.slot_size)
+            .map_err(StoreError::Flash)?;
+        let first = F::WRITE_SIZE.max(4);
+        let (head, rest) = record.split_at(first.min(record.len()));
+        let mut at = base + head.len() as u32;
+        for chunk in rest.chunks(CHUNK) {
+            self.flash.write(at, chunk).map_err(StoreError::Flash)?;
+            at += chunk.len() as u32;
+        }
+        self.flash.write(base, head).map_err(StoreError::Flash)?;
+        Ok(seq)
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,255 @@
+use super::*;
+use crate::calib::encoded_len_max;
+use embedded_storage::nor_flash::ReadNorFlash;
+use embedded_storage::nor_flash::{ErrorType, NorFlashError, NorFlashErrorKind};
+
+extern crate std;
+use std::vec;
+use std::vec::Vec;
+
+const ERASE: usize = 1024;
+const SLOT_BLOCKS: usize = 3;
+const G: usize = 16;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum MockError {
+    PowerCut,
+    /// A write to bytes that were not erased: a logic error of the store.
+    NotErased,
+    OutOfBounds,
+}
+
+impl NorFlashError for MockError {
+    fn kind(&self) -> NorFlashErrorKind {
+        match self {
+            MockError::OutOfBounds => NorFlashErrorKind::OutOfBounds,
+            _ => NorFlashErrorKind::Other,
+        }
+    }
+}
+
+/// NOR flash with 4-byte words and 1 KiB erase blocks whose power can be cut after `budget` operations (one
+/// operation = one block erase or one word write). An interrupted erase leaves its block half erased, half garbage.
+#[derive(Clone)]
+struct MockFlash {
+    mem: Vec<u8>,
+    budget: Option<usize>,
+    ops: usize,
+}
+
+impl MockFlash {
+    fn new() -> Self {
+        Self {
+            mem: vec![0xFF; 2 * SLOT_BLOCKS * ERASE],
+            budget: None,
+            ops: 0,
+        }
+    }
+
+    fn step(&mut self) -> Result<(), MockError> {
+        if self.budget.is_some_and(|b| self.ops >= b) {
+            return Err(MockError::PowerCut);
+        }
+        self.ops += 1;
+        Ok(())
+    }
+}
+
+impl ErrorType for MockFlash {
+    type Error = MockError;
+}
+
+impl ReadNorFlash for MockFlash {
+    const READ_SIZE: usize = 1;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), MockError> {
+        let src = self
+            .mem
+            .get(offset as usize..offset as usize + bytes.len())
+            .ok_or(MockError::OutOfBounds)?;
+        bytes.copy_from_slice(src);
+        Ok(())
+    }
+    fn capacity(&self) -> usize {
+        self.mem.len()
+    }
+}
+
+impl NorFlash for MockFlash {
+    const WRITE_SIZE: usize = 4;
+    const ERASE_SIZE: usize = ERASE;
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), MockError> {
+        for block in (from as usize..to as usize).step_by(ERASE) {
+            let cut = self.step();
+            let b = self
+                .mem
+                .get_mut(block..block + ERASE)
+                .ok_or(MockError::OutOfBounds)?;
+            if cut.is_err() {
+                b[..ERASE / 2].fill(0xFF);
+                b[ERASE / 2..]
+                    .iter_mut()
+                    .enumerate()
+                    .for_each(|(i, x)| *x = (i * 7 + 3) as u8);
+                return cut;
+            }
+            b.fill(0xFF);
+        }
+        Ok(())
+    }
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), MockError> {
+        for (i, word) in bytes.chunks(4).enumerate() {
+            self.step()?;
+            let at = offset as usize + 4 * i;
+            let dst = self
+                .mem
+                .get_mut(at..at + word.len())
+                .ok_or(MockError::OutOfBounds)?;
+            if dst.iter().any(|&b| b != 0xFF) {
+                return Err(MockError::NotErased);
+            }
+            dst.copy_from_slice(word);
+        }
+        Ok(())
+    }
+}
+
+fn table(id: u32) -> CalibrationTable<G> {
+    let mut t = CalibrationTable::factory();
+    t.cal_id = id;
+    t.groups[(id as usize) % G].accel_bias_q12[1] += id as i32 * 1000;
+    t
+}
+
+fn scratch() -> Vec<u8> {
+    vec![0u8; HEADER_LEN + encoded_len_max(G) + CRC_LEN + 8]
+}
+
+fn load(flash: MockFlash) -> Loaded<G> {
+    let mut store = CalStore::new(MockFlash {
+        budget: None,
+        ..flash
+    })
+    .unwrap();
+    store.load::<G>(&mut scratch()).unwrap()
+}
+
+#[test]
+fn empty_flash_loads_the_factory_default() {
+    let l = load(MockFlash::new());
+    assert_eq!(
+        (l.table, l.seq, l.slots),
+        (CalibrationTable::factory(), None, [SlotState::Empty; 2])
+    );
+}
+
+#[test]
+fn updates_alternate_slots_and_the_newest_wins() {
+    let mut store = CalStore::new(MockFlash::new()).unwrap();
+    let mut s = scratch();
+    assert_eq!(store.store(&table(1), &mut s), Ok(1));
+    assert_eq!(store.store(&table(2), &mut s), Ok(2));
+    assert_eq!(store.store(&table(3), &mut s), Ok(3));
+    let l = store.load::<G>(&mut s).unwrap();
+    assert_eq!(
+        (l.table, l.seq, l.slots),
+        (
+            table(3),
+            Some(3),
+            [SlotState::Valid(3), SlotState::Valid(2)]
+        )
+    );
+}
+
+#[test]
+fn a_damaged_record_falls_back_to_the_other_slot() {
+    let mut store = CalStore::new(MockFlash::new()).unwrap();
+    let mut s = scratch();
+    store.store(&table(1), &mut s).unwrap();
+    store.store(&table(2), &mut s).unwrap(); // in slot B
+    let mut flash = store.into_inner();
+    flash.mem[SLOT_BLOCKS * ERASE + 40] ^= 0x01;
+    let l = load(flash);
+    assert_eq!(
+        (l.table, l.seq, l.slots),
+        (table(1), Some(1), [SlotState::Valid(1), SlotState::Invalid])
+    );
+}
+
+#[test]
+fn power_cut_at_every_step_always_loads_a_valid_calibration() {
+    // Three consecutive updates (slot A, B, A again) from an empty flash; power cut at every operation of each.
+    let mut flash = MockFlash::new();
+    let mut previous: Option<CalibrationTable<G>> = None;
+    for id in 1..=3u32 {
+        let new = table(id);
+        let mut cuts = 0;
+        for budget in 0.. {
+            let mut trial = CalStore::new(MockFlash {
+                budget: Some(budget),
+                ops: 0,
+                ..flash.clone()
+            })
+            .unwrap();
+            let result = trial.store(&new, &mut scratch());
+            let after = trial.into_inner();
+            if result.is_ok() {
+                assert!(budget > 0);
+                break;
+            }
+            assert_eq!(
+                result,
+                Err(StoreError::Flash(MockError::PowerCut)),
+                "budget {budget}"
+            );
+            cuts += 1;
+            // Reboot: old or new, never anything else; the factory default only if there never was a record.
+            let l = load(after);
+            match previous {
+                Some(old) => assert!(
+                    l.table == old || l.table == new,
+                    "update {id}, cut after {budget} ops"
+                ),
+                None => assert!(
+                    l.table == new || (l.seq.is_none() && l.table == CalibrationTable::factory())
+                ),
+            }
+        }
+        // Exactly one cut point per block erase (3) and per word of the record.
+        let mut buf = scratch();
+        let words = (HEADER_LEN + new.encode(&mut buf).unwrap().len() + CRC_LEN).div_ceil(4);
+        assert_eq!(cuts, SLOT_BLOCKS + words, "update {id}");
+        let mut store = CalStore::new(flash).unwrap();
+        store.store(&new, &mut scratch()).unwrap();
+        flash = store.into_inner();
+        assert_eq!(load(flash.clone()).table, new);
+        previous = Some(new);
+    }
+}
+
+#[test]
+fn geometry_is_checked() {
+    struct Odd;
+    impl ErrorType for Odd {
+        type Error = MockError;
+    }
+    impl ReadNorFlash for Odd {
+        const READ_SIZE: usize = 1;
+        fn read(&mut self, _: u32, _: &mut [u8]) -> Result<(), MockError> {
+            Ok(())
+        }
+        fn capacity(&self) -> usize {
+            3 * ERASE
+        }
+    }
+    impl NorFlash for Odd {
+        const WRITE_SIZE: usize = 4;
+        const ERASE_SIZE: usize = ERASE;
+        fn erase(&mut self, _: u32, _: u32) -> Result<(), MockError> {
+            Ok(())
+        }
+        fn write(&mut self, _: u32, _: &[u8]) -> Result<(), MockError> {
+            Ok(())
+        }
+    }
+    assert!(matches!(CalStore::new(Odd), Err(StoreError::Geometry)));
+}
