@@ -30,6 +30,7 @@ use crate::telemetry::{
 };
 use crate::wire::frame::GROUPS;
 use crate::wire::{Decoded, FpgaControl, FrameDecoder, LinkCounters};
+use core::borrow::BorrowMut;
 
 /// Allan channels of the calibrated sensor axes: group g, axis a → channel 6g + a.
 pub const SENSOR_CHANNELS: usize = GROUPS * AXES;
@@ -69,7 +70,7 @@ impl PipelineConfig {
     };
 }
 
-/// Something the platform must do.
+/// Something the platform must do. (Dumps come from [`Pipeline::poll_dump`].)
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Output {
     /// Send on the bus.
@@ -179,14 +180,32 @@ struct Cursor {
     faults: Option<u8>,
 }
 
-/// The on-board pipeline (see module docs). About 66 KiB; build it in place in a static (`new` is `const`).
-pub struct Pipeline {
+/// The Allan accumulators of all channels (59.6 KiB, all zero when new, so a static of it lands in `.bss`).
+pub struct AllanBank(pub [AllanAccumulator; ALLAN_CHANNELS]);
+
+impl AllanBank {
+    /// All accumulators empty.
+    pub const fn new() -> Self {
+        Self([const { AllanAccumulator::new() }; ALLAN_CHANNELS])
+    }
+}
+
+impl Default for AllanBank {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The on-board pipeline (see module docs). The Allan bank `B` is held by anything that borrows an [`AllanBank`]
+/// mutably (`&'static mut AllanBank` on the MCU, `Box<AllanBank>` on the host), so that the rest (about 7 KiB) can
+/// be built on the stack.
+pub struct Pipeline<B> {
     config: PipelineConfig,
     decoder: FrameDecoder,
     cal: CalibrationTable<GROUPS>,
     cal_source: CalSource,
     fusion: Fusion<GROUPS>,
-    allan: [AllanAccumulator; ALLAN_CHANNELS],
+    allan: B,
     fused_hold: [i32; AXES],
     decimation: Option<u16>,
     base_ticks: u64,
@@ -202,16 +221,20 @@ pub struct Pipeline {
     commands: [u32; 2],
 }
 
-impl Pipeline {
-    /// A pipeline with the factory calibration.
-    pub const fn new(config: PipelineConfig) -> Self {
+impl<B: BorrowMut<AllanBank>> Pipeline<B> {
+    /// A pipeline with the factory calibration; `bank` is reset.
+    pub fn new(config: PipelineConfig, mut bank: B) -> Self {
+        bank.borrow_mut()
+            .0
+            .iter_mut()
+            .for_each(AllanAccumulator::reset);
         Self {
             config,
             decoder: FrameDecoder::new(),
             cal: CalibrationTable::factory(),
             cal_source: CalSource::Factory,
             fusion: Fusion::new(config.fusion),
-            allan: [const { AllanAccumulator::new() }; ALLAN_CHANNELS],
+            allan: bank,
             fused_hold: [0; AXES],
             decimation: None,
             base_ticks: 0,
@@ -272,7 +295,7 @@ impl Pipeline {
 
     /// Allan accumulator of `channel` (see [`SENSOR_CHANNELS`], [`FUSED_CHANNEL0`]).
     pub fn allan(&self, channel: usize) -> Option<&AllanAccumulator> {
-        self.allan.get(channel)
+        self.allan.borrow().0.get(channel)
     }
 
     /// Sample interval of the Allan accumulators, ps (`None` before the first frame).
@@ -317,20 +340,20 @@ impl Pipeline {
         }
     }
 
-    /// The next output, if any.
+    /// The next queued output (telemetry of frames and commands, FPGA control, persist), if any.
     pub fn poll(&mut self) -> Option<Output> {
-        if let Some(o) = self.outbox.pop_front() {
-            return Some(o);
-        }
+        self.outbox.pop_front()
+    }
+
+    /// The next report of a requested dump (Allan levels, fault counters), generated now; `None` when no dump is
+    /// under way. Separate from [`Self::poll`] so that the platform pulls dumps only as fast as its bus drains,
+    /// without ever delaying the FPGA link.
+    pub fn poll_dump(&mut self) -> Option<Telemetry> {
         if let Some(group) = self.cursor.faults {
             let next = group + 1;
             self.cursor.faults = (usize::from(next) < GROUPS).then_some(next);
             if let Some([gyro, accel]) = self.fusion.fault_counts(usize::from(group)) {
-                return Some(Output::Telemetry(Telemetry::Faults(FaultReport {
-                    group,
-                    gyro,
-                    accel,
-                })));
+                return Some(Telemetry::Faults(FaultReport { group, gyro, accel }));
             }
         }
         while let Some((channel, level, end)) = self.cursor.allan {
@@ -340,16 +363,17 @@ impl Pipeline {
                 (channel + 1, 0)
             };
             self.cursor.allan = (next_channel < end).then_some((next_channel, next_level, end));
-            let Some(acc) = self.allan.get(usize::from(channel)) else {
+            let tau0_ps = self.tau0_ps().unwrap_or(0);
+            let Some(acc) = self.allan.borrow().0.get(usize::from(channel)) else {
                 continue;
             };
             if let Some(l) = acc.level(usize::from(level)).filter(|l| l.count > 0) {
-                return Some(Output::Telemetry(Telemetry::Allan(AllanReport {
+                return Some(Telemetry::Allan(AllanReport {
                     channel,
-                    tau0_ps: self.tau0_ps().unwrap_or(0),
+                    tau0_ps,
                     samples: acc.samples(),
                     level: l,
-                })));
+                }));
             }
         }
         None
@@ -380,7 +404,12 @@ impl Pipeline {
             robust: fusion.robust,
             faults,
             invalid_frames: self.invalid_frames,
-            allan_samples: self.allan.first().map_or(0, AllanAccumulator::samples),
+            allan_samples: self
+                .allan
+                .borrow()
+                .0
+                .first()
+                .map_or(0, AllanAccumulator::samples),
             telemetry_dropped: self.telemetry_dropped,
             commands: self.commands,
         }
@@ -393,7 +422,11 @@ impl Pipeline {
     }
 
     fn restart_statistics(&mut self) {
-        self.allan.iter_mut().for_each(AllanAccumulator::reset);
+        self.allan
+            .borrow_mut()
+            .0
+            .iter_mut()
+            .for_each(AllanAccumulator::reset);
         self.avg = Averager::NEW;
     }
 
@@ -417,14 +450,20 @@ impl Pipeline {
         for ((out, r), cal) in axes.iter_mut().zip(&raw).zip(&self.cal.groups) {
             *out = cal.apply(r);
         }
-        for (acc, &x) in self.allan.iter_mut().zip(axes.as_flattened()) {
+        let bank = &mut self.allan.borrow_mut().0;
+        for (acc, &x) in bank.iter_mut().zip(axes.as_flattened()) {
             acc.push(x);
         }
         let fused = self.fusion.fuse(&raw, &axes, &self.cal);
         if !fused.valid() {
             self.invalid_frames = self.invalid_frames.wrapping_add(1);
         }
-        let fused_allan = self.allan.get_mut(FUSED_CHANNEL0..).unwrap_or(&mut []);
+        let fused_allan = self
+            .allan
+            .borrow_mut()
+            .0
+            .get_mut(FUSED_CHANNEL0..)
+            .unwrap_or(&mut []);
         for (((acc, hold), &x), &used) in fused_allan
             .iter_mut()
             .zip(&mut self.fused_hold)
@@ -525,7 +564,12 @@ impl Pipeline {
                 }
                 self.cursor.allan = Some((first, 0, end as u8));
             }
-            Command::AllanReset => self.allan.iter_mut().for_each(AllanAccumulator::reset),
+            Command::AllanReset => self
+                .allan
+                .borrow_mut()
+                .0
+                .iter_mut()
+                .for_each(AllanAccumulator::reset),
             Command::HealthRequest { detail } => {
                 let h = self.health();
                 self.push(Output::Telemetry(Telemetry::Health(h)));

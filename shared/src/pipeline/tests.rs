@@ -39,8 +39,23 @@ fn stream(frames: &[FrameRepr]) -> Vec<u8> {
     frames.iter().flat_map(FrameRepr::to_bytes).collect()
 }
 
+type HostPipeline = Pipeline<std::boxed::Box<AllanBank>>;
+
+impl HostPipeline {
+    fn new_boxed(config: PipelineConfig) -> Self {
+        Pipeline::new(config, std::boxed::Box::new(AllanBank::new()))
+    }
+}
+
+/// Everything the pipeline has to say now: queued outputs, then dump reports.
+fn drain(p: &mut HostPipeline) -> Vec<Output> {
+    let mut out: Vec<Output> = core::iter::from_fn(|| p.poll()).collect();
+    out.extend(core::iter::from_fn(|| p.poll_dump()).map(Output::Telemetry));
+    out
+}
+
 /// Feeds all bytes, draining outputs as `push_link` asks.
-fn run(p: &mut Pipeline, bytes: &[u8]) -> Vec<Output> {
+fn run(p: &mut HostPipeline, bytes: &[u8]) -> Vec<Output> {
     let mut out = Vec::new();
     let mut input = bytes;
     loop {
@@ -64,10 +79,10 @@ fn fused(outputs: &[Output]) -> Vec<FusedReport> {
         .collect()
 }
 
-fn command(p: &mut Pipeline, tag: u16, cmd: Command) -> Vec<Output> {
+fn command(p: &mut HostPipeline, tag: u16, cmd: Command) -> Vec<Output> {
     let mut buf = [0u8; 256];
     p.handle_command(encode(&CommandEnvelope { tag, cmd }, &mut buf).unwrap());
-    core::iter::from_fn(|| p.poll()).collect()
+    drain(p)
 }
 
 fn ack(outputs: &[Output]) -> Ack {
@@ -84,7 +99,7 @@ fn noiseless_frames_give_exact_physical_values() {
     let frames: Vec<FrameRepr> = (0..64)
         .map(|i| frame(i, 15, [12.5, 0.0, -3.0], [0.0, 0.0, -1.0], 0.0, &mut rng))
         .collect();
-    let mut p = Pipeline::new(PipelineConfig {
+    let mut p = Pipeline::new_boxed(PipelineConfig {
         health_every: 0,
         ..PipelineConfig::DEFAULT
     });
@@ -121,14 +136,14 @@ fn averaging_reduces_noise_by_sqrt_l() {
         ..PipelineConfig::DEFAULT
     };
     let every = fused(&run(
-        &mut Pipeline::new(PipelineConfig {
+        &mut Pipeline::new_boxed(PipelineConfig {
             frames_per_output: 1,
             ..cfg
         }),
         &bytes,
     ));
     let averaged = fused(&run(
-        &mut Pipeline::new(PipelineConfig {
+        &mut Pipeline::new_boxed(PipelineConfig {
             frames_per_output: 16,
             ..cfg
         }),
@@ -162,7 +177,7 @@ fn time_and_tau0_follow_the_sequence_counter_and_decimation() {
         .map(|i| frame(i, 15, [0.0; 3], [0.0; 3], 5.0, &mut rng))
         .collect();
     frames.retain(|f| f.seq != 4 && f.seq != 5); // two frames lost
-    let mut p = Pipeline::new(PipelineConfig {
+    let mut p = Pipeline::new_boxed(PipelineConfig {
         frames_per_output: 1,
         health_every: 0,
         ..PipelineConfig::DEFAULT
@@ -188,7 +203,7 @@ fn backpressure_loses_nothing() {
     let frames: Vec<FrameRepr> = (0..100)
         .map(|i| frame(i, 15, [0.0; 3], [0.0; 3], 5.0, &mut rng))
         .collect();
-    let mut p = Pipeline::new(PipelineConfig {
+    let mut p = Pipeline::new_boxed(PipelineConfig {
         frames_per_output: 1,
         health_every: 1,
         ..PipelineConfig::DEFAULT
@@ -220,7 +235,7 @@ fn backpressure_loses_nothing() {
 
 #[test]
 fn commands_are_acknowledged_or_rejected_with_a_reason() {
-    let mut p = Pipeline::new(PipelineConfig::DEFAULT);
+    let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
     assert_eq!(
         ack(&command(&mut p, 1, Command::Ping)),
         Ack {
@@ -277,7 +292,7 @@ fn commands_are_acknowledged_or_rejected_with_a_reason() {
     ));
 }
 
-fn upload(p: &mut Pipeline, bytes: &[u8], crc: u32) -> Vec<Output> {
+fn upload(p: &mut HostPipeline, bytes: &[u8], crc: u32) -> Vec<Output> {
     assert_eq!(
         ack(&command(
             p,
@@ -310,7 +325,7 @@ fn calibration_upload_in_chunks() {
     let bytes = table.encode(&mut buf).unwrap().to_vec();
     assert!(bytes.len() > 2 * CAL_CHUNK_MAX);
 
-    let mut p = Pipeline::new(PipelineConfig::DEFAULT);
+    let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
     // Out of order, overflow and a wrong announced CRC are refused.
     command(
         &mut p,
@@ -358,7 +373,7 @@ fn allan_dump_reports_every_filled_level() {
     let frames: Vec<FrameRepr> = (0..300)
         .map(|i| frame(i, 15, [0.0; 3], [0.0; 3], 30.0, &mut rng))
         .collect();
-    let mut p = Pipeline::new(PipelineConfig {
+    let mut p = Pipeline::new_boxed(PipelineConfig {
         health_every: 0,
         ..PipelineConfig::DEFAULT
     });
