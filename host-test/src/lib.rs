@@ -2,4 +2,9 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod adev;
 pub mod allan;
+pub mod formats;
+pub mod noisefit;
+pub mod plot;
+pub mod replay;

@@ -29,7 +29,7 @@ use crate::telemetry::{
     FusedReport, HealthReport, Reject, Telemetry, decode, peek_tag,
 };
 use crate::wire::frame::GROUPS;
-use crate::wire::{Decoded, FpgaControl, FrameDecoder, LinkCounters};
+use crate::wire::{Decoded, FpgaControl, FrameClock, FrameDecoder, LinkCounters};
 use core::borrow::BorrowMut;
 
 /// Allan channels of the calibrated sensor axes: group g, axis a → channel 6g + a.
@@ -207,8 +207,8 @@ pub struct Pipeline<B> {
     fusion: Fusion<GROUPS>,
     allan: B,
     fused_hold: [i32; AXES],
-    decimation: Option<u16>,
-    base_ticks: u64,
+    clock: FrameClock,
+    last: FusedSample,
     avg: Averager,
     out_seq: u32,
     outputs_since_health: u16,
@@ -236,8 +236,13 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             fusion: Fusion::new(config.fusion),
             allan: bank,
             fused_hold: [0; AXES],
-            decimation: None,
-            base_ticks: 0,
+            clock: FrameClock::new(),
+            last: FusedSample {
+                axes: [0; AXES],
+                used: [0; AXES],
+                used_mask: [0; AXES],
+                health: Averager::NEW.health,
+            },
             avg: Averager::NEW,
             out_seq: 0,
             outputs_since_health: 0,
@@ -300,8 +305,13 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 
     /// Sample interval of the Allan accumulators, ps (`None` before the first frame).
     pub fn tau0_ps(&self) -> Option<u64> {
-        let n = u128::from(self.decimation?) + 1;
+        let n = u128::from(self.clock.decimation()?) + 1;
         Some((n * 1_000_000_000_000_000 / u128::from(self.config.fpga_base_rate_mhz.max(1))) as u64)
+    }
+
+    /// The fused sample of the last frame processed.
+    pub fn last_fused(&self) -> &FusedSample {
+        &self.last
     }
 
     /// The fusion state (noise estimates, weights, fault counts).
@@ -398,7 +408,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             link: *self.decoder.counters(),
             cal_id: self.cal.cal_id,
             cal_source: self.cal_source,
-            decimation: self.decimation,
+            decimation: self.clock.decimation(),
             frames_per_output: self.config.frames_per_output,
             fusion: fusion.mode,
             robust: fusion.robust,
@@ -432,18 +442,11 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 
     fn process(&mut self, d: &Decoded) {
         let f = &d.frame;
-        let step = u64::from(f.decimation) + 1;
-        match self.decimation {
-            Some(n) if n == f.decimation => {
-                self.base_ticks += u64::from(d.missing_before) * step;
-            }
-            Some(_) => self.restart_statistics(),
-            None => {}
+        let tick = self.clock.advance(d);
+        if tick.rate_changed {
+            self.restart_statistics();
         }
-        self.decimation = Some(f.decimation);
-        let t_us = (u128::from(self.base_ticks) * 1_000_000_000
-            / u128::from(self.config.fpga_base_rate_mhz.max(1))) as u64;
-        self.base_ticks += step;
+        let t_us = FrameClock::ticks_to_us(tick.base_ticks, self.config.fpga_base_rate_mhz);
 
         let raw: [RawCounts; GROUPS] = f.raw.map(|codes| RawCounts::from_adc(&codes));
         let mut axes = [[0i32; AXES]; GROUPS];
@@ -477,6 +480,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         }
 
         self.avg.add(&fused, f.temp_cdeg, t_us);
+        self.last = fused;
         if self.avg.frames >= self.config.frames_per_output.max(1) {
             let report = self.avg.report(self.out_seq);
             self.out_seq = self.out_seq.wrapping_add(1);

@@ -128,6 +128,8 @@ pub struct FusedSample {
     pub axes: [i32; AXES],
     /// Sensors used per axis; 0 marks the axis invalid.
     pub used: [u8; AXES],
+    /// Groups used per axis (bit g = group g).
+    pub used_mask: [u32; AXES],
     /// Sensors left out.
     pub health: HealthMask,
 }
@@ -362,10 +364,14 @@ impl<const G: usize> Fusion<G> {
         let mut outlier = [0u32; 2];
         for (a, (value, used)) in out.axes.iter_mut().zip(out.used.iter_mut()).enumerate() {
             let kind = usize::from(a >= 3);
-            let (n, fused, out_mask) = self.fuse_axis(a, axes, &excluded, kind, recompute);
+            let (n, fused, out_mask, used_mask) =
+                self.fuse_axis(a, axes, &excluded, kind, recompute);
             *value = fused;
             *used = n;
             outlier[kind] |= out_mask;
+            if let Some(m) = out.used_mask.get_mut(a) {
+                *m = used_mask;
+            }
         }
         out.health.gyro.outlier = outlier[0];
         out.health.accel.outlier = outlier[1];
@@ -383,7 +389,7 @@ impl<const G: usize> Fusion<G> {
         out
     }
 
-    /// One axis: returns (sensors used, fused value, outlier mask).
+    /// One axis: returns (sensors used, fused value, outlier mask, used mask).
     fn fuse_axis(
         &mut self,
         a: usize,
@@ -391,7 +397,7 @@ impl<const G: usize> Fusion<G> {
         excluded: &[[bool; 2]; G],
         kind: usize,
         recompute: bool,
-    ) -> (u8, i32, u32) {
+    ) -> (u8, i32, u32, u32) {
         // Candidates: value and group, in a fixed-size buffer.
         let mut vals = [0i32; G];
         let mut n = 0;
@@ -403,7 +409,7 @@ impl<const G: usize> Fusion<G> {
         }
         if n == 0 {
             self.forget_residuals(a);
-            return (0, 0, 0);
+            return (0, 0, 0, 0);
         }
         let mut sorted = vals;
         let sorted = sorted.get_mut(..n).unwrap_or(&mut []);
@@ -481,7 +487,7 @@ impl<const G: usize> Fusion<G> {
 
         // The mean over the used sensors.
         let weighted = self.config.mode == FusionMode::InverseVariance && all_settled;
-        let (mut num, mut den, mut used) = (0i64, 0i64, 0u8);
+        let (mut num, mut den, mut used, mut mask) = (0i64, 0i64, 0u8, 0u32);
         for (g, (v, ex)) in axes.iter().zip(excluded).enumerate() {
             let (Some(&x), Some(state)) = (v.get(a), self.axes.get(g).and_then(|s| s.get(a)))
             else {
@@ -498,11 +504,12 @@ impl<const G: usize> Fusion<G> {
             num += w * i64::from(x);
             den += w;
             used += 1;
+            mask |= 1 << g;
         }
         if den == 0 {
-            return (0, 0, outliers);
+            return (0, 0, outliers, 0);
         }
-        (used, div_round(num, den), outliers)
+        (used, div_round(num, den), outliers, mask)
     }
 
     fn forget_residuals(&mut self, a: usize) {

@@ -4,10 +4,12 @@
 //! guarantees that no accessor can fail afterwards, and a parsed representation (`…Repr`) with `parse` and `emit`
 //! that mirror each other. Specifications: `docs/fpga-link.md`, `docs/bus.md`.
 
+pub mod clock;
 pub mod control;
 pub mod decoder;
 pub mod frame;
 
+pub use clock::{FrameClock, Tick};
 pub use control::{ControlError, FpgaControl};
 pub use decoder::{Decoded, FrameDecoder, LinkCounters};
 pub use frame::{Frame, FrameRepr, RawSample, WireError};

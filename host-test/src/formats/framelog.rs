@@ -1,0 +1,96 @@
+//! FPGA frame logs: the link's byte stream as recorded (`docs/fpga-link.md`), decoded with the core's own
+//! `FrameDecoder`, and turned into a physical [`Recording`] with a calibration (the core's fixed-point code).
+
+use super::csv::{Column, Recording, SensorKind};
+use shared::calib::{AXES, CalibrationTable, RawCounts};
+use shared::wire::frame::GROUPS;
+use shared::wire::{Decoded, FrameClock, FrameDecoder, FrameRepr, LinkCounters};
+
+/// A decoded frame log.
+#[derive(Clone, Debug)]
+pub struct FrameLog {
+    /// Frames in order, with the sequence gaps before them.
+    pub frames: Vec<Decoded>,
+    /// What the decoder counted.
+    pub counters: LinkCounters,
+}
+
+impl FrameLog {
+    /// Decodes a byte stream (any corruption is counted, never fatal).
+    pub fn decode(bytes: &[u8]) -> FrameLog {
+        let mut dec = FrameDecoder::new();
+        let mut input = bytes;
+        let mut frames = Vec::with_capacity(bytes.len() / shared::wire::frame::FRAME_LEN);
+        while let Some(d) = dec.decode(&mut input) {
+            frames.push(d);
+        }
+        FrameLog {
+            frames,
+            counters: *dec.counters(),
+        }
+    }
+
+    /// Encodes frames as a link byte stream.
+    pub fn encode<'a>(frames: impl IntoIterator<Item = &'a FrameRepr>) -> Vec<u8> {
+        frames.into_iter().flat_map(FrameRepr::to_bytes).collect()
+    }
+
+    /// The physical recording: every frame through `cal` (the core's fixed-point calibration), times from the
+    /// sequence counter and decimation at `base_rate_mhz` (see `FrameClock`). Columns in °/s and g.
+    pub fn to_recording(&self, cal: &CalibrationTable<GROUPS>, base_rate_mhz: u64) -> Recording {
+        let n = self.frames.len();
+        let mut clock = FrameClock::new();
+        let mut rec = Recording {
+            t_s: Vec::with_capacity(n),
+            temp_c: None,
+            columns: Vec::new(),
+        };
+        let mut data = vec![
+            [
+                Vec::<f64>::with_capacity(n),
+                Vec::new(),
+                Vec::new(),
+                Vec::new(),
+                Vec::new(),
+                Vec::new()
+            ];
+            GROUPS
+        ];
+        let mut temps = Vec::with_capacity(n);
+        let any_temp = self.frames.iter().any(|d| d.frame.temp_cdeg.is_some());
+        for d in &self.frames {
+            let tick = clock.advance(d);
+            rec.t_s
+                .push(tick.base_ticks as f64 * 1000.0 / base_rate_mhz.max(1) as f64);
+            temps.push(d.frame.temp_cdeg.map_or(f64::NAN, |t| f64::from(t) / 100.0));
+            for ((codes, group_cal), out) in
+                d.frame.raw.iter().zip(&cal.groups).zip(data.iter_mut())
+            {
+                let axes = group_cal.apply(&RawCounts::from_adc(codes));
+                for (v, col) in axes.iter().zip(out.iter_mut()) {
+                    col.push(f64::from(*v) * 1e-6); // µ°/s → °/s, µg → g
+                }
+            }
+        }
+        for (group, cols) in data.into_iter().enumerate() {
+            for (a, col) in cols.into_iter().enumerate().take(AXES) {
+                let kind = if a < 3 {
+                    SensorKind::Gyro
+                } else {
+                    SensorKind::Accel
+                };
+                rec.columns.push(Column {
+                    group,
+                    kind,
+                    axis: a % 3,
+                    data: col,
+                });
+            }
+        }
+        rec.columns.sort_by_key(|c| (c.kind, c.group, c.axis));
+        if any_temp {
+            rec.temp_c = Some(temps);
+        }
+        rec
+    }
+}

@@ -1,0 +1,254 @@
+//! Replay: a frame log through `shared::Pipeline` on the host, producing the telemetry stream the MCU would send,
+//! optionally checked against an independent f64 model of the same calibration and fusion.
+//!
+//! The f64 check recomputes every frame's fused value from the raw codes: calibration with the table's
+//! coefficients as exact reals (`m / 2¹²`), then the mean over the groups the core used for that axis, with its
+//! weights (equal until its noise estimates settle, then the Q16 inverse-variance weights). It measures the
+//! arithmetic — fixed-point calibration, rounding, integer means and output averaging — not the choice of sensors,
+//! which the core reports per axis (`FusedSample::used_mask`).
+
+use crate::formats::framelog::FrameLog;
+use shared::bus::{BusConfig, BusNode, MAX_WIRE_FRAME};
+use shared::calib::{AXES, CalibrationTable, FRAC_BITS, GroupCal, RawCounts};
+use shared::fuse::FusionMode;
+use shared::pipeline::{ALLAN_CHANNELS, AllanBank, Output, Pipeline, PipelineConfig};
+use shared::telemetry::{Command, CommandEnvelope, MAX_MESSAGE_LEN, Telemetry, encode};
+use shared::wire::frame::GROUPS;
+use shared::wire::{FpgaControl, LinkCounters};
+
+/// The host's pipeline.
+pub type HostPipeline = Pipeline<Box<AllanBank>>;
+
+/// A host pipeline with `config` and `cal`.
+pub fn host_pipeline(config: PipelineConfig, cal: CalibrationTable<GROUPS>) -> HostPipeline {
+    let mut p = Pipeline::new(config, Box::new(AllanBank::new()));
+    p.load_calibration(cal, shared::telemetry::CalSource::Uploaded);
+    p
+}
+
+/// Replay parameters.
+#[derive(Clone, Debug)]
+pub struct ReplayOptions {
+    /// Pipeline parameters.
+    pub config: PipelineConfig,
+    /// Calibration applied.
+    pub cal: CalibrationTable<GROUPS>,
+    /// Addresses of the telemetry packets.
+    pub bus: BusConfig,
+    /// At the end, ask for all Allan channels and a detailed health report, as the ground would.
+    pub final_dump: bool,
+    /// Run the f64 check.
+    pub check: bool,
+}
+
+/// Largest differences between the core and the f64 model, in output LSB (µ°/s, µg), per axis.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CheckReport {
+    /// Per frame: fused value.
+    pub frame_max_lsb: [f64; AXES],
+    /// Per output report: the averaged value.
+    pub report_max_lsb: [f64; AXES],
+    /// Frames compared.
+    pub frames: u64,
+    /// Reports compared.
+    pub reports: u64,
+}
+
+/// What a replay produced.
+#[derive(Clone, Debug, Default)]
+pub struct ReplayOutput {
+    /// The bus byte stream (KISS frames) the MCU would have sent.
+    pub telemetry: Vec<u8>,
+    /// Messages in it.
+    pub messages: Vec<Telemetry>,
+    /// FPGA control messages the pipeline asked for.
+    pub fpga: Vec<FpgaControl>,
+    /// Link statistics.
+    pub counters: LinkCounters,
+    /// The f64 check, when asked for.
+    pub check: Option<CheckReport>,
+}
+
+/// `M · (raw − b)` with the table's coefficients as exact reals.
+pub fn calibrate_f64(cal: &GroupCal, raw: &RawCounts) -> [f64; AXES] {
+    let s = f64::from(1u32 << FRAC_BITS);
+    let row = |m: &[i32], b: &[i32], r: &[i32]| -> f64 {
+        m.iter()
+            .zip(b)
+            .zip(r)
+            .map(|((&m, &b), &r)| f64::from(m) / s * (f64::from(r) - f64::from(b) / s))
+            .sum()
+    };
+    let mut out = [0.0; AXES];
+    for i in 0..3 {
+        out[i] = row(&cal.gyro_matrix_q12[i], &cal.gyro_bias_q12, &raw.gyro);
+        out[3 + i] = row(&cal.accel_matrix_q12[i], &cal.accel_bias_q12, &raw.accel);
+    }
+    out
+}
+
+struct Sink {
+    node: BusNode,
+    out: ReplayOutput,
+    payload: Vec<u8>,
+    wire: Vec<u8>,
+}
+
+impl Sink {
+    fn take(&mut self, o: Output) {
+        match o {
+            Output::Telemetry(t) => self.telemetry(t),
+            Output::Fpga(c) => self.out.fpga.push(c),
+            Output::PersistCalibration => {}
+        }
+    }
+
+    fn telemetry(&mut self, t: Telemetry) {
+        if let Ok(p) = encode(&t, &mut self.payload)
+            && let Ok(n) = self.node.encode_telemetry(p, &mut self.wire)
+        {
+            self.out.telemetry.extend_from_slice(&self.wire[..n]);
+        }
+        self.out.messages.push(t);
+    }
+}
+
+/// Replays a frame log (bytes as recorded). `progress` is called with the number of bytes consumed so far.
+pub fn replay(bytes: &[u8], opts: &ReplayOptions, mut progress: impl FnMut(usize)) -> ReplayOutput {
+    let mut p = host_pipeline(opts.config, opts.cal);
+    let mut sink = Sink {
+        node: BusNode::new(opts.bus),
+        out: ReplayOutput::default(),
+        payload: vec![0; MAX_MESSAGE_LEN],
+        wire: vec![0; MAX_WIRE_FRAME],
+    };
+    let mut check = CheckReport::default();
+    if opts.check {
+        // Frame by frame, so that each frame's fused sample can be compared.
+        let log = FrameLog::decode(bytes);
+        let mut block: Vec<[f64; AXES]> = Vec::new();
+        for (i, d) in log.frames.iter().enumerate() {
+            let frame = d.frame.to_bytes();
+            let mut input = &frame[..];
+            p.push_link(&mut input);
+            let reference = reference_fused(&p, &d.frame.raw, &opts.cal);
+            let fused = *p.last_fused();
+            for (a, r) in reference.iter().enumerate() {
+                if fused.used[a] > 0 {
+                    let e = (f64::from(fused.axes[a]) - r).abs();
+                    check.frame_max_lsb[a] = check.frame_max_lsb[a].max(e);
+                }
+            }
+            check.frames += 1;
+            // The output mean covers the frames where the axis was valid.
+            block.push(std::array::from_fn(|a| {
+                if fused.used[a] > 0 {
+                    reference[a]
+                } else {
+                    f64::NAN
+                }
+            }));
+            while let Some(o) = p.poll() {
+                if let Output::Telemetry(Telemetry::Fused(r)) = &o {
+                    let values = [
+                        r.rate_udps[0],
+                        r.rate_udps[1],
+                        r.rate_udps[2],
+                        r.accel_ug[0],
+                        r.accel_ug[1],
+                        r.accel_ug[2],
+                    ];
+                    for a in 0..AXES {
+                        let v: Vec<f64> =
+                            block.iter().map(|b| b[a]).filter(|x| !x.is_nan()).collect();
+                        if !v.is_empty() {
+                            let mean = v.iter().sum::<f64>() / v.len() as f64;
+                            let e = (f64::from(values[a]) - mean).abs();
+                            check.report_max_lsb[a] = check.report_max_lsb[a].max(e);
+                        }
+                    }
+                    check.reports += 1;
+                    block.clear();
+                }
+                sink.take(o);
+            }
+            if i % 4096 == 0 {
+                progress(i * shared::wire::frame::FRAME_LEN);
+            }
+        }
+        sink.out.check = Some(check);
+    } else {
+        let mut input = bytes;
+        let mut last_report = 0;
+        while !input.is_empty() {
+            p.push_link(&mut input);
+            while let Some(o) = p.poll() {
+                sink.take(o);
+            }
+            let done = bytes.len() - input.len();
+            if done - last_report >= 1 << 20 {
+                progress(done);
+                last_report = done;
+            }
+        }
+    }
+    if opts.final_dump {
+        let mut buf = [0u8; 64];
+        for (tag, cmd) in [
+            (
+                1,
+                Command::AllanRequest {
+                    first: 0,
+                    count: ALLAN_CHANNELS as u8,
+                },
+            ),
+            (2, Command::HealthRequest { detail: true }),
+        ] {
+            if let Ok(msg) = encode(&CommandEnvelope { tag, cmd }, &mut buf) {
+                p.handle_command(msg);
+            }
+            while let Some(o) = p.poll() {
+                sink.take(o);
+            }
+            while let Some(t) = p.poll_dump() {
+                sink.telemetry(t);
+            }
+        }
+    }
+    progress(bytes.len());
+    sink.out.counters = *p.link_counters();
+    sink.out
+}
+
+/// The f64 model's fused value of the frame just processed by `p` (see module docs).
+fn reference_fused(
+    p: &HostPipeline,
+    raw: &shared::wire::RawSample,
+    cal: &CalibrationTable<GROUPS>,
+) -> [f64; AXES] {
+    let fused = p.last_fused();
+    let calibrated: Vec<[f64; AXES]> = raw
+        .iter()
+        .zip(&cal.groups)
+        .map(|(codes, g)| calibrate_f64(g, &RawCounts::from_adc(codes)))
+        .collect();
+    let weighted = p.fusion().config().mode == FusionMode::InverseVariance;
+    std::array::from_fn(|a| {
+        let used: Vec<usize> = (0..GROUPS)
+            .filter(|g| fused.used_mask[a] & (1 << g) != 0)
+            .collect();
+        let settled = used.iter().all(|&g| p.fusion().noise_var(g, a).is_some());
+        let w = |g: usize| {
+            if weighted && settled {
+                f64::from(p.fusion().weight_q16(g, a).unwrap_or(0))
+            } else {
+                1.0
+            }
+        };
+        let den: f64 = used.iter().map(|&g| w(g)).sum();
+        if den == 0.0 {
+            return f64::NAN;
+        }
+        used.iter().map(|&g| w(g) * calibrated[g][a]).sum::<f64>() / den
+    })
+}
