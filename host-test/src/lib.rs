@@ -5,6 +5,7 @@
 pub mod adev;
 pub mod allan;
 pub mod formats;
+pub mod load;
 pub mod noisefit;
 pub mod plot;
 pub mod replay;
