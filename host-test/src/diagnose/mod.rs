@@ -23,6 +23,7 @@
 
 pub mod acov;
 pub mod model;
+pub mod report;
 
 use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, TauSpec};
 use crate::formats::csv::{AXIS_NAMES, Recording, SensorKind};

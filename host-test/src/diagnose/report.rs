@@ -1,0 +1,170 @@
+//! Human-readable report and plots of a diagnosis.
+
+use super::Report;
+use crate::plot::{self, Curve, Panel, Style};
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// The text report.
+pub fn text(r: &Report, source: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "Sim-to-real diagnosis of {source}");
+    let _ = writeln!(
+        s,
+        "{} samples at {:.6} s; cluster mean with {:?} weights; fitted on the first half, checked on the second.",
+        r.samples, r.tau0_s, r.weights
+    );
+    let _ = writeln!(s);
+    let _ = writeln!(
+        s,
+        "Gap = RMS over axes and octave tau of ln(measured / predicted) cluster deviation."
+    );
+    let _ = writeln!(
+        s,
+        "  before (independent typical sensors, the sqrt(N) model): {:.3} first half, {:.3} held-out",
+        r.gap_before, r.heldout.gap_before
+    );
+    let _ = writeln!(
+        s,
+        "  after (with the effects below):                         {:.3} first half, {:.3} held-out",
+        r.gap_after, r.heldout.gap_after
+    );
+    if r.heldout.gap_before > 0.0 {
+        let _ = writeln!(
+            s,
+            "  held-out gap shrinks by {:.0} %",
+            100.0 * (1.0 - r.heldout.gap_after / r.heldout.gap_before)
+        );
+    }
+    let _ = writeln!(s);
+    if r.effects.is_empty() {
+        let _ = writeln!(s, "Effects: none (no significant gap).");
+    } else {
+        let _ = writeln!(
+            s,
+            "Effects (chosen by the gap they explain on the held-out half):"
+        );
+        for e in &r.effects {
+            let groups = if e.kind == "outlier_sensor" || e.kind == "block_common_mode" {
+                format!(", groups {:?}", e.groups)
+            } else {
+                String::new()
+            };
+            let _ = writeln!(s, "  {} — {} {}{}", e.kind, e.sensor, e.axes, groups);
+            for (axis, p) in &e.params {
+                let mut brief = p.clone();
+                if let Some(o) = brief.as_object_mut() {
+                    o.remove("deviation_ratio_to_typical");
+                    o.remove("beta");
+                }
+                let _ = writeln!(s, "      {axis}: {brief}");
+            }
+        }
+    }
+    let _ = writeln!(s);
+    let _ = writeln!(
+        s,
+        "Per axis (gains with 68 % intervals; 'weighting' = what an inverse-variance mean recovers over the equal mean):"
+    );
+    let _ = writeln!(
+        s,
+        "  axis  N  expected  RMS-noise gain          bias-stability gain     weighting  gap before→after (held-out)  effects"
+    );
+    for a in &r.axes {
+        let _ = writeln!(
+            s,
+            "  {:<4} {:>2}  {:>7.2}   {:5.2} [{:5.2}, {:5.2}]    {:5.2} [{:5.2}, {:5.2}]    {:6.3}     {:.3} → {:.3}                 {}",
+            a.axis,
+            a.sensors,
+            a.expected_gain,
+            a.rms_gain.value,
+            a.rms_gain.ci_lo,
+            a.rms_gain.ci_hi,
+            a.bias_stability_gain.value,
+            a.bias_stability_gain.ci_lo,
+            a.bias_stability_gain.ci_hi,
+            a.weighting_recovers,
+            a.heldout_gap[0],
+            a.heldout_gap[1],
+            if a.effects.is_empty() {
+                "-".into()
+            } else {
+                a.effects.join(", ")
+            }
+        );
+        for reg in &a.regions {
+            let _ = writeln!(
+                s,
+                "        {:<12} tau {:>9.3} … {:>9.3} s: mean gap {:+.3} → {:+.3}, significant points {}/{} → {}/{}",
+                reg.region,
+                reg.tau_s[0],
+                reg.tau_s[1],
+                reg.gap_before,
+                reg.gap_after,
+                reg.significant_before,
+                reg.points,
+                reg.significant_after,
+                reg.points
+            );
+        }
+    }
+    s
+}
+
+/// Measured vs predicted cluster deviation before and after, per axis (held-out half).
+pub fn plot(r: &Report, path: &Path, source: &str) -> Result<(), String> {
+    let panels: Vec<Panel> = r
+        .curves
+        .iter()
+        .map(|c| {
+            let m = &c.measured;
+            let unit = if c.axis.starts_with('g') {
+                "deg/s"
+            } else {
+                "g"
+            };
+            Panel {
+                title: c.axis.clone(),
+                y_label: format!("cluster deviation [{unit}]"),
+                curves: vec![
+                    Curve {
+                        label: Some("predicted before (independent)".into()),
+                        points: m
+                            .tau_s
+                            .iter()
+                            .copied()
+                            .zip(c.before.iter().copied())
+                            .collect(),
+                        bars: vec![],
+                        style: Style::Dashed,
+                    },
+                    Curve {
+                        label: Some("predicted after (with effects)".into()),
+                        points: m
+                            .tau_s
+                            .iter()
+                            .copied()
+                            .zip(c.after.iter().copied())
+                            .collect(),
+                        bars: vec![],
+                        style: Style::Model(3),
+                    },
+                    Curve {
+                        label: Some("measured (held-out half)".into()),
+                        points: m.tau_s.iter().copied().zip(m.dev.iter().copied()).collect(),
+                        bars: (0..m.tau_s.len())
+                            .map(|k| (m.tau_s[k], m.lo[k], m.hi[k]))
+                            .collect(),
+                        style: Style::Bold,
+                    },
+                ],
+            }
+        })
+        .collect();
+    plot::adev_panels(
+        path,
+        &format!("Diagnosis — {source}: held-out half"),
+        &panels,
+        3,
+    )
+}
