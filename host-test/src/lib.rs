@@ -10,3 +10,6 @@ pub mod load;
 pub mod noisefit;
 pub mod plot;
 pub mod replay;
+pub mod seedfit;
+pub mod sim;
+pub mod simcli;

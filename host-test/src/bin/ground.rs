@@ -28,6 +28,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
+    /// Simulate a cluster recording from a noise model with optional effects (frame log .bin or CSV .csv).
+    Simulate(SimulateArgs),
     /// Convert a frame log (or any recording) to the interchange CSV (°/s, g).
     Import(ImportArgs),
     /// Run a frame log through the flight core (shared::Pipeline) and write the telemetry stream it would send.
@@ -71,6 +73,41 @@ struct DiagnoseArgs {
     /// Calibration table (.bin) for raw inputs.
     #[arg(long)]
     calib: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum PresetArg {
+    /// The seed paper's single-sensor noise (Tables 1 and 2), independent sensors.
+    Seed,
+    /// The seed paper's noise with the common modes that explain its cluster ratios (`seedfit`).
+    SeedFitted,
+}
+
+#[derive(clap::Args)]
+struct SimulateArgs {
+    /// Output: .bin (FPGA frame log: ADC codes through the true calibration) or .csv (interchange CSV, °/s and g).
+    #[arg(long)]
+    out: PathBuf,
+    /// Noise model.
+    #[arg(long, value_enum, default_value = "seed")]
+    preset: PresetArg,
+    /// Duration in hours (default: the seed's 8 h = 545,410 samples at 18.9 Hz).
+    #[arg(long)]
+    hours: Option<f64>,
+    /// Number of samples (instead of --hours).
+    #[arg(long, conflicts_with = "hours")]
+    samples: Option<u64>,
+    /// Output rate, Hz (frames carry the decimation that gives it from the FPGA base rate).
+    #[arg(long, default_value_t = 18.9)]
+    rate: f64,
+    /// Random seed (same seed, same output).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// FPGA base rate before decimation, Hz.
+    #[arg(long, default_value_t = 9676.8)]
+    base_rate_hz: f64,
+    #[command(flatten)]
+    effects: host_test::simcli::EffectArgs,
 }
 
 #[derive(clap::Args)]
@@ -175,6 +212,7 @@ struct AllanArgs {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.cmd {
+        Cmd::Simulate(a) => simulate(a),
         Cmd::Import(a) => import(a),
         Cmd::Replay(a) => replay_cmd(a),
         Cmd::Decode(a) => decode(a),
@@ -557,5 +595,44 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
             .with_context(|| format!("writing {}", j.display()))?;
         println!("json: {}", j.display());
     }
+    Ok(())
+}
+
+fn simulate(a: SimulateArgs) -> Result<()> {
+    use host_test::{seedfit, sim, simcli};
+    let sim_err = |e: sim::SimError| anyhow::anyhow!("{e}");
+    let mut cfg = match a.preset {
+        PresetArg::Seed => sim::preset::seed_config(a.seed).map_err(sim_err)?,
+        PresetArg::SeedFitted => {
+            seedfit::seed_config_with(&seedfit::fit().map_err(sim_err)?, a.seed).map_err(sim_err)?
+        }
+    };
+    if !(a.rate.is_finite() && a.rate > 0.0) {
+        bail!("--rate must be a positive number of Hz");
+    }
+    cfg.rate_hz = a.rate;
+    cfg.samples = match (a.samples, a.hours) {
+        (Some(n), _) => n,
+        (None, Some(h)) if h > 0.0 => (h * 3600.0 * a.rate).round() as u64,
+        (None, Some(_)) => bail!("--hours must be positive"),
+        (None, None) if a.rate == 18.9 => cfg.samples,
+        (None, None) => (8.0 * 3600.0 * a.rate).round() as u64,
+    };
+    cfg.frames = simcli::frame_opts(a.rate, a.base_rate_hz);
+    a.effects.apply(&mut cfg)?;
+    let samples = cfg.samples;
+    let pb = bar(samples, "samples");
+    let t0 = std::time::Instant::now();
+    simcli::write(cfg, &a.out, |n| pb.set_position(n))?;
+    pb.finish_and_clear();
+    let size = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
+    println!(
+        "{}: {samples} samples at {} Hz ({:.2} h), {:.1} MB, {:.1} s",
+        a.out.display(),
+        a.rate,
+        samples as f64 / a.rate / 3600.0,
+        size as f64 / 1e6,
+        t0.elapsed().as_secs_f64()
+    );
     Ok(())
 }

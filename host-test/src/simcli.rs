@@ -1,0 +1,246 @@
+//! Command-line description of a simulation (`ground simulate`): presets and effect flags → [`SimConfig`], and
+//! writing the result as a frame log or an interchange CSV.
+
+use crate::sim::{
+    Axis, CalSpread, Channel, Chunk, CommonDrift, CommonMode, DriftKind, FrameOpts, Outlier,
+    PartSpread, SimConfig, Simulator, Thermal, csv_header,
+};
+use anyhow::{Context, Result, bail};
+use std::io::Write;
+use std::path::Path;
+
+/// Parses axes: `gyro`, `accel`, `all`, or a comma list of `gx gy gz ax ay az`.
+pub fn parse_axes(s: &str) -> Result<Vec<Axis>> {
+    let all = Axis::ALL;
+    Ok(match s {
+        "gyro" => all[..3].to_vec(),
+        "accel" => all[3..].to_vec(),
+        "all" => all.to_vec(),
+        list => list
+            .split(',')
+            .map(|a| {
+                all.iter()
+                    .copied()
+                    .find(|x| x.short() == a.trim())
+                    .with_context(|| {
+                        format!("unknown axis '{a}' (gx gy gz ax ay az, gyro, accel, all)")
+                    })
+            })
+            .collect::<Result<_>>()?,
+    })
+}
+
+/// Parses a group list `0,3,5-7`.
+pub fn parse_groups(s: &str) -> Result<Vec<usize>> {
+    let mut out = Vec::new();
+    for part in s.split(',') {
+        match part.split_once('-') {
+            Some((a, b)) => {
+                let (a, b): (usize, usize) = (a.trim().parse()?, b.trim().parse()?);
+                out.extend(a..=b);
+            }
+            None => out.push(
+                part.trim()
+                    .parse()
+                    .with_context(|| format!("bad group '{part}'"))?,
+            ),
+        }
+    }
+    Ok(out)
+}
+
+fn parse_channel(s: &str) -> Result<Channel> {
+    Ok(match s {
+        "gx" => Channel::GyroAX,
+        "gy" => Channel::GyroBY,
+        "gaz" | "gz" => Channel::GyroAZ,
+        "gbz" => Channel::GyroBZ,
+        "ax" => Channel::AccelX,
+        "ay" => Channel::AccelY,
+        "az" => Channel::AccelZ,
+        _ => bail!("unknown channel '{s}' (gx gy gaz gbz ax ay az)"),
+    })
+}
+
+fn nums(s: &str, what: &str, n: std::ops::RangeInclusive<usize>) -> Result<Vec<f64>> {
+    let v: Vec<f64> = s
+        .split(':')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("{what}: '{s}' is not a list of numbers"))?;
+    if !n.contains(&v.len()) {
+        bail!(
+            "{what}: expected {} to {} numbers separated by ':', found '{s}'",
+            n.start(),
+            n.end()
+        );
+    }
+    Ok(v)
+}
+
+/// The effect flags of `ground simulate`.
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct EffectArgs {
+    /// Common-mode noise shared by all groups: AXES:RHO_WHITE[:RHO_FLICKER] (e.g. gyro:0.1:0.2).
+    #[arg(long = "common-mode")]
+    pub common_mode: Vec<String>,
+    /// Noise shared within a block of groups: GROUPS/AXES:RHO_WHITE[:RHO_FLICKER] (e.g. 0-3/gyro:0.5).
+    #[arg(long)]
+    pub block: Vec<String>,
+    /// Shared slow drift (random walk of the bias) of all groups: AXES:K (K in (°/s)/√s or g/√s).
+    #[arg(long)]
+    pub drift: Vec<String>,
+    /// Temperature-driven bias: AXES:COEF[:SD] per °C ((°/s)/°C or g/°C); board temperature 20 °C ± 2 °C over 2 h plus 1 °C/h.
+    #[arg(long)]
+    pub thermal: Vec<String>,
+    /// A bad sensor: GROUP:CHANNEL:NOISE_FACTOR[:STEP:STEP_AT_S] (channels gx gy gaz gbz ax ay az).
+    #[arg(long)]
+    pub outlier: Vec<String>,
+    /// Unequal parts: log-sd of a lognormal factor on each sensor's noise levels.
+    #[arg(long, default_value_t = 0.0)]
+    pub unequal: f64,
+    /// Per-part calibration errors (scale, misalignment, bias) of a typical uncalibrated board.
+    #[arg(long)]
+    pub cal_spread: bool,
+}
+
+impl EffectArgs {
+    /// Adds the effects to `cfg`.
+    pub fn apply(&self, cfg: &mut SimConfig) -> Result<()> {
+        for s in &self.common_mode {
+            let (axes, rest) = s
+                .split_once(':')
+                .context("--common-mode AXES:RHO_WHITE[:RHO_FLICKER]")?;
+            let r = nums(rest, "--common-mode", 1..=2)?;
+            cfg.common.push(CommonMode::all(
+                &parse_axes(axes)?,
+                r[0],
+                r.get(1).copied().unwrap_or(0.0),
+            ));
+        }
+        for (i, s) in self.block.iter().enumerate() {
+            let (groups, rest) = s
+                .split_once('/')
+                .context("--block GROUPS/AXES:RHO_WHITE[:RHO_FLICKER]")?;
+            let (axes, rest) = rest
+                .split_once(':')
+                .context("--block GROUPS/AXES:RHO_WHITE[:RHO_FLICKER]")?;
+            let r = nums(rest, "--block", 1..=2)?;
+            cfg.common.push(CommonMode::block(
+                &format!("block {i}"),
+                &parse_groups(groups)?,
+                &parse_axes(axes)?,
+                r[0],
+                r.get(1).copied().unwrap_or(0.0),
+            ));
+        }
+        for s in &self.drift {
+            let (axes, rest) = s.split_once(':').context("--drift AXES:K")?;
+            let k = nums(rest, "--drift", 1..=1)?[0];
+            cfg.drift.push(CommonDrift {
+                groups: None,
+                axes: parse_axes(axes)?,
+                kind: DriftKind::RandomWalk { k },
+            });
+        }
+        for s in &self.thermal {
+            let (axes, rest) = s.split_once(':').context("--thermal AXES:COEF[:SD]")?;
+            let v = nums(rest, "--thermal", 1..=2)?;
+            let t = cfg.thermal.get_or_insert(Thermal {
+                mean_c: 20.0,
+                amplitude_c: 2.0,
+                period_s: 7200.0,
+                phase_rad: 0.0,
+                drift_c_per_h: 1.0,
+                coef: [0.0; 6],
+                coef_sd: [0.0; 6],
+            });
+            for a in parse_axes(axes)? {
+                t.coef[a.index()] = v[0];
+                t.coef_sd[a.index()] = v.get(1).copied().unwrap_or(0.0);
+            }
+        }
+        for s in &self.outlier {
+            let parts: Vec<&str> = s.split(':').collect();
+            if !(3..=5).contains(&parts.len()) {
+                bail!("--outlier GROUP:CHANNEL:NOISE_FACTOR[:STEP:STEP_AT_S], found '{s}'");
+            }
+            let num = |i: usize| -> Result<f64> {
+                parts.get(i).map_or(Ok(0.0), |p| {
+                    p.parse::<f64>()
+                        .with_context(|| format!("--outlier: '{p}'"))
+                })
+            };
+            cfg.outliers.push(Outlier {
+                group: parts[0]
+                    .parse()
+                    .with_context(|| format!("--outlier group '{}'", parts[0]))?,
+                channel: parse_channel(parts[1])?,
+                noise_factor: num(2)?,
+                step: num(3)?,
+                step_at_s: num(4)?,
+                drift_per_h: 0.0,
+            });
+        }
+        if self.unequal > 0.0 {
+            cfg.spread = PartSpread::unequal_noise(self.unequal);
+        }
+        if self.cal_spread {
+            cfg.cal = CalSpread::typical();
+        }
+        Ok(())
+    }
+}
+
+/// Writes a simulation to `path`: `.bin` frame log (raw ADC codes through the true calibration, the FPGA's wire
+/// format) or `.csv` interchange CSV (physical values). `progress` gets the samples done.
+pub fn write(cfg: SimConfig, path: &Path, mut progress: impl FnMut(u64)) -> Result<Simulator> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let csv = match ext.as_str() {
+        "csv" => true,
+        "bin" => false,
+        _ => bail!(
+            "{}: the output must end in .bin (frame log) or .csv (interchange CSV)",
+            path.display()
+        ),
+    };
+    let with_temp = cfg.thermal.is_some();
+    let mut sim = Simulator::new(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut out = std::io::BufWriter::with_capacity(
+        1 << 20,
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+    );
+    let mut chunk = Chunk::default();
+    let mut text = String::new();
+    if csv {
+        writeln!(out, "{}", csv_header(with_temp))?;
+    }
+    let mut done = 0u64;
+    while sim.next_chunk(&mut chunk) > 0 {
+        for i in 0..chunk.len {
+            if csv {
+                text.clear();
+                chunk.write_csv_row(i, &mut text);
+                out.write_all(text.as_bytes())?;
+            } else if let Some(f) = chunk.frame(i) {
+                out.write_all(&f.to_bytes())?;
+            }
+        }
+        done += chunk.len as u64;
+        progress(done);
+    }
+    out.flush()?;
+    Ok(sim)
+}
+
+/// Frame header defaults for a rate: the decimation that gives `rate_hz` from the FPGA base rate.
+pub fn frame_opts(rate_hz: f64, base_rate_hz: f64) -> FrameOpts {
+    FrameOpts {
+        decimation: ((base_rate_hz / rate_hz).round().max(1.0) - 1.0) as u16,
+        seq_start: 0,
+    }
+}
