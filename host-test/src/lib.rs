@@ -4,6 +4,7 @@
 
 pub mod adev;
 pub mod allan;
+pub mod demo;
 pub mod diagnose;
 pub mod formats;
 pub mod load;

@@ -28,6 +28,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
+    /// The main job: the seed experiment (16 groups, 18.9 Hz, 8 h) simulated, run through the flight core, and the
+    /// paper's Tables 1 and 2 recomputed with ADEV plots and a report.
+    Demo(DemoArgs),
     /// Simulate a cluster recording from a noise model with optional effects (frame log .bin or CSV .csv).
     Simulate(SimulateArgs),
     /// Convert a frame log (or any recording) to the interchange CSV (°/s, g).
@@ -73,6 +76,19 @@ struct DiagnoseArgs {
     /// Calibration table (.bin) for raw inputs.
     #[arg(long)]
     calib: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct DemoArgs {
+    /// Output folder.
+    #[arg(long, default_value = "demo-out")]
+    out: PathBuf,
+    /// Simulation seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Duration, hours (the seed experiment: 8).
+    #[arg(long, default_value_t = 8.0)]
+    hours: f64,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -212,6 +228,7 @@ struct AllanArgs {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.cmd {
+        Cmd::Demo(a) => demo(a),
         Cmd::Simulate(a) => simulate(a),
         Cmd::Import(a) => import(a),
         Cmd::Replay(a) => replay_cmd(a),
@@ -634,5 +651,25 @@ fn simulate(a: SimulateArgs) -> Result<()> {
         size as f64 / 1e6,
         t0.elapsed().as_secs_f64()
     );
+    Ok(())
+}
+
+fn demo(a: DemoArgs) -> Result<()> {
+    use host_test::demo::{self, DemoOptions};
+    if !(a.hours.is_finite() && a.hours > 0.0 && a.hours <= 100.0) {
+        bail!("--hours must be in (0, 100]");
+    }
+    let opts = DemoOptions {
+        seed: a.seed,
+        hours: a.hours,
+    };
+    let pb = bar(0, "frames");
+    let r = demo::run(opts, &a.out, |done, total| {
+        pb.set_length(total);
+        pb.set_position(done);
+    })?;
+    pb.finish_and_clear();
+    print!("{}", demo::report(&r, opts));
+    println!("\noutputs in {}", a.out.display());
     Ok(())
 }
