@@ -244,3 +244,45 @@ pub fn frame_opts(rate_hz: f64, base_rate_hz: f64) -> FrameOpts {
         seq_start: 0,
     }
 }
+
+/// Runs a simulation into an in-memory [`Recording`] (physical values, °/s and g; `temp_c` with a thermal effect).
+pub fn recording(cfg: SimConfig) -> Result<crate::formats::Recording> {
+    use crate::formats::csv::{Column, SensorKind};
+    let n = cfg.samples as usize;
+    let with_temp = cfg.thermal.is_some();
+    let mut sim = Simulator::new(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut rec = crate::formats::Recording {
+        t_s: Vec::with_capacity(n),
+        temp_c: with_temp.then(|| Vec::with_capacity(n)),
+        columns: Vec::new(),
+    };
+    for g in 0..crate::sim::GROUPS {
+        for a in Axis::ALL {
+            let kind = if a.is_gyro() {
+                SensorKind::Gyro
+            } else {
+                SensorKind::Accel
+            };
+            rec.columns.push(Column {
+                group: g,
+                kind,
+                axis: a.index() % 3,
+                data: Vec::with_capacity(n),
+            });
+        }
+    }
+    let mut chunk = Chunk::default();
+    while sim.next_chunk(&mut chunk) > 0 {
+        rec.t_s.extend_from_slice(&chunk.t_s[..chunk.len]);
+        if let Some(t) = &mut rec.temp_c {
+            t.extend_from_slice(&chunk.temp_c[..chunk.len]);
+        }
+        for (k, col) in rec.columns.iter_mut().enumerate() {
+            let (g, a) = (k / 6, k % 6);
+            col.data
+                .extend(chunk.phys[..chunk.len].iter().map(|p| p[g][a]));
+        }
+    }
+    rec.columns.sort_by_key(|c| (c.kind, c.group, c.axis));
+    Ok(rec)
+}

@@ -12,7 +12,9 @@
 //!    a subset found from the leading eigenvector of the correlation matrix), `thermal` (bias ∝ temperature, one
 //!    coefficient per sensor, when `temp_c` exists);
 //! 4. candidates are added greedily by how much they shrink the gap **on the second half** (never by the fit on the
-//!    first), while the remaining gap is significant and the step shrinks it by at least 20 %.
+//!    first), while the remaining gap is significant — `Σ (gap/σ)²` over the axis's points exceeds the chi-squared
+//!    quantile at `p_false` (one strong point counts as much as many weak ones: thermal and drift effects show only
+//!    at the longest τ) — and the step shrinks it by at least `min_shrink`.
 //!
 //! The gap at one τ = m·τ₀ is `ln(measured / predicted)` of the deviation; it counts where the half holds at least
 //! `min_blocks` independent averaging blocks (N/m). Its uncertainty is `√(σ²_meas + σ²_model)`: σ_meas =
@@ -55,6 +57,8 @@ pub struct Options {
     pub model_tolerance: f64,
     /// Smallest relative shrink of the held-out gap for an effect to be accepted.
     pub min_shrink: f64,
+    /// False-alarm probability of the test "the remaining gap of an axis is significant".
+    pub p_false: f64,
 }
 
 impl Default for Options {
@@ -65,6 +69,7 @@ impl Default for Options {
             z: 2.0,
             model_tolerance: 0.03,
             min_shrink: 0.2,
+            p_false: 1e-3,
         }
     }
 }
@@ -648,9 +653,8 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
         loop {
             let pts = score(&model, &m_held, &th);
             let current = rms(pts.iter().map(|p| p.0));
-            let significant = pts.iter().filter(|(g, s)| g.abs() > opts.z * s).count();
-            if significant * 5 < pts.len().max(1) {
-                break; // fewer than 20 % of the points are off: nothing significant left
+            if !significant_gap(&pts, opts.p_false) {
+                break;
             }
             let mut best: Option<(f64, usize, Model)> = None;
             for (i, c) in cands.iter().enumerate() {
@@ -751,6 +755,19 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
         weights: opts.weights,
         curves,
     })
+}
+
+/// Whether the gap points reject "model right" at false-alarm probability `p`: `Σ (g/σ)² > χ²_{1−p}(n)`.
+pub fn significant_gap(points: &[(f64, f64)], p: f64) -> bool {
+    use statrs::distribution::{ChiSquared, ContinuousCDF};
+    let n = points.len();
+    if n == 0 {
+        return false;
+    }
+    let stat: f64 = points.iter().map(|(g, s)| (g / s).powi(2)).sum();
+    ChiSquared::new(n as f64)
+        .map(|c| stat > c.inverse_cdf(1.0 - p))
+        .unwrap_or(false)
 }
 
 /// The τ regions of an axis from the typical model, with the held-out gap in each.
