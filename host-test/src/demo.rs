@@ -195,7 +195,7 @@ pub fn run(
                 r.accel_ug[1],
                 r.accel_ug[2],
             ];
-            v.map(|x| f64::from(x) * 1e-6)
+            v.map(|x| f64::from(x) / 1e6)
         })
         .collect();
     let mut core_allan: Vec<Vec<(usize, f64, u32)>> = vec![Vec::new(); ALLAN_CHANNELS];
@@ -206,7 +206,7 @@ pub fn run(
             && let Some(c) = core_allan.get_mut(usize::from(a.channel))
         {
             if a.level.count >= MIN_DIFFERENCES {
-                c.push((usize::from(a.level.level), v.sqrt() * 1e-6, a.level.count));
+                c.push((usize::from(a.level.level), v.sqrt() / 1e6, a.level.count));
             }
             tau0_s = a.tau0_ps as f64 * 1e-12;
         }
@@ -235,7 +235,7 @@ pub fn run(
         }
         // Table 1.
         let std =
-            |s: f64, s2: f64| ((s2 - s * s / n as f64) / (n as f64 - 1.0)).max(0.0).sqrt() * 1e-6;
+            |s: f64, s2: f64| ((s2 - s * s / n as f64) / (n as f64 - 1.0)).max(0.0).sqrt() / 1e6;
         let single = (sum
             .iter()
             .zip(&sum2)

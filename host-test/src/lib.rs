@@ -4,10 +4,12 @@
 
 pub mod adev;
 pub mod allan;
+pub mod calibrate;
 pub mod demo;
 pub mod diagnose;
 pub mod formats;
 pub mod load;
+pub mod mimu;
 pub mod noisefit;
 pub mod plot;
 pub mod replay;

@@ -1,5 +1,6 @@
-//! Opens any recording the tools accept: interchange CSV (by extension), FPGA frame log (starts with the frame
-//! sync marker) or MIMU4444 stream (starts with its command acknowledgement / 0xAA frames).
+//! Opens any recording the tools accept: interchange CSV (by extension), FPGA frame log (the frame sync marker
+//! within its first bytes) or MIMU4444 stream (a valid 0xAA frame within its first bytes), and reads calibration
+//! files of either array (16 groups: our board; 8 IMUs: the MIMU4444) in any of their forms (.bin, .json, .toml).
 
 use crate::formats::csv::Recording;
 use crate::formats::framelog::FrameLog;
@@ -15,6 +16,8 @@ pub enum InputKind {
     Csv,
     /// FPGA frame log.
     FrameLog,
+    /// MIMU4444 stream.
+    Mimu,
 }
 
 /// Guesses the kind of `path` from its extension and first bytes.
@@ -28,8 +31,12 @@ pub fn detect(path: &Path, head: &[u8]) -> Result<InputKind> {
     if head.windows(SYNC.len()).take(512).any(|w| w == SYNC) {
         return Ok(InputKind::FrameLog);
     }
+    if (0..head.len().min(512)).any(|i| crate::mimu::Frame::decode(&head[i..]).is_ok()) {
+        return Ok(InputKind::Mimu);
+    }
     bail!(
-        "{}: not a recognised recording (expected an interchange .csv, or an FPGA frame log starting with the sync marker 1A CF FC 1D)",
+        "{}: not a recognised recording (expected an interchange .csv, an FPGA frame log with the sync marker \
+         1A CF FC 1D, or a MIMU4444 stream of 0xAA frames)",
         path.display()
     )
 }
@@ -40,6 +47,141 @@ pub struct Loaded {
     pub recording: Recording,
     /// Messages worth printing.
     pub notes: Vec<String>,
+}
+
+/// A calibration of either array.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Calibration {
+    /// Our board (16 groups).
+    Board(Box<CalibrationTable<GROUPS>>),
+    /// The MIMU4444 array (8 IMUs).
+    Mimu(Box<CalibrationTable<MIMU_IMUS>>),
+}
+
+/// IMUs of the MIMU4444 array.
+pub const MIMU_IMUS: usize = crate::mimu::IMUS;
+
+/// Reads a calibration file of either array (`.bin`, `.json`, `.toml`).
+pub fn read_any_calibration(path: &Path) -> Result<Calibration> {
+    let err = |e: crate::calibrate::CalibError| anyhow::anyhow!("{}: {e}", path.display());
+    if let Ok(t) = crate::calibrate::read_calibration::<GROUPS>(path) {
+        return Ok(Calibration::Board(Box::new(
+            t.to_table::<GROUPS>().map_err(err)?,
+        )));
+    }
+    let f = crate::calibrate::read_calibration::<MIMU_IMUS>(path).map_err(err)?;
+    Ok(Calibration::Mimu(Box::new(
+        f.to_table::<MIMU_IMUS>().map_err(err)?,
+    )))
+}
+
+/// The physical recording of a MIMU4444 stream: with `cal`, the table (µ-units, fixed point, in the cluster frame
+/// it defines); without, the nominal scales (2048 counts/g, 16.4 counts/(°/s)) in each IMU's own frame.
+pub fn mimu_recording(
+    m: &crate::mimu::Recording,
+    cal: Option<&CalibrationTable<MIMU_IMUS>>,
+) -> Recording {
+    use crate::formats::csv::{Column, SensorKind};
+    use shared::calib::RawCounts;
+    let n = m.frames.len();
+    let mut cols: Vec<Vec<f64>> = (0..MIMU_IMUS * 6).map(|_| Vec::with_capacity(n)).collect();
+    for f in &m.frames {
+        for (i, s) in f.imu.iter().enumerate() {
+            let g = s.gyro.map(i32::from);
+            let a = s.acc.map(i32::from);
+            let v: [f64; 6] = match cal.and_then(|c| c.groups.get(i)) {
+                Some(gc) => gc
+                    .apply(&RawCounts {
+                        gyro: [g[0], g[1], g[2], 0],
+                        accel: a,
+                    })
+                    .map(|x| f64::from(x) / 1e6),
+                None => {
+                    let (gs, as_) = (crate::mimu::GYRO_LSB_PER_DPS, crate::mimu::ACCEL_LSB_PER_G);
+                    [
+                        f64::from(g[0]) / gs,
+                        f64::from(g[1]) / gs,
+                        f64::from(g[2]) / gs,
+                        f64::from(a[0]) / as_,
+                        f64::from(a[1]) / as_,
+                        f64::from(a[2]) / as_,
+                    ]
+                }
+            };
+            for (k, x) in v.iter().enumerate() {
+                cols[i * 6 + k].push(*x);
+            }
+        }
+    }
+    let mut columns: Vec<Column> = cols
+        .into_iter()
+        .enumerate()
+        .map(|(k, data)| Column {
+            group: k / 6,
+            kind: if k % 6 < 3 {
+                SensorKind::Gyro
+            } else {
+                SensorKind::Accel
+            },
+            axis: k % 3,
+            data,
+        })
+        .collect();
+    columns.sort_by_key(|c| (c.kind, c.group, c.axis));
+    Recording {
+        t_s: m.times_s(),
+        temp_c: None,
+        columns,
+    }
+}
+
+/// Loads a recording; raw formats go through `cal` (the factory default of our board, or the MIMU4444's nominal
+/// scales, when `None`).
+pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_mhz: u64) -> Result<Loaded> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    if detect(path, &bytes)? == InputKind::Mimu {
+        let m =
+            crate::mimu::parse(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        let table = match cal {
+            Some(Calibration::Mimu(t)) => Some(t.as_ref()),
+            Some(Calibration::Board(_)) => {
+                bail!(
+                    "{}: a 16-group calibration cannot apply to the 8-IMU MIMU4444 array",
+                    path.display()
+                )
+            }
+            None => None,
+        };
+        let s = &m.stats;
+        let notes = vec![format!(
+            "MIMU4444 stream: {} frames, {:.1} s, {} bytes skipped, {} checksum failures, {} packets missing{}",
+            m.frames.len(),
+            m.duration_s(),
+            s.bytes_skipped,
+            s.checksum_failures,
+            s.packets_missing,
+            if table.is_none() {
+                " (nominal scales, each IMU in its own frame)"
+            } else {
+                " (calibrated, cluster frame)"
+            }
+        )];
+        return Ok(Loaded {
+            recording: mimu_recording(&m, table),
+            notes,
+        });
+    }
+    let board = match cal {
+        Some(Calibration::Board(t)) => Some(t.as_ref()),
+        Some(Calibration::Mimu(_)) => {
+            bail!(
+                "{}: an 8-IMU calibration cannot apply to our 16-group frames",
+                path.display()
+            )
+        }
+        None => None,
+    };
+    load(path, board, base_rate_mhz)
 }
 
 /// Loads a recording; raw formats go through `cal` (factory default when `None`).
@@ -57,6 +199,7 @@ pub fn load(
                 Recording::parse(&text).with_context(|| path.display().to_string())?;
             Ok(Loaded { recording, notes })
         }
+        InputKind::Mimu => load_with(path, None, base_rate_mhz),
         InputKind::FrameLog => {
             let log = FrameLog::decode(&bytes);
             if log.frames.is_empty() {

@@ -33,8 +33,11 @@ enum Cmd {
     Demo(DemoArgs),
     /// Simulate a cluster recording from a noise model with optional effects (frame log .bin or CSV .csv).
     Simulate(SimulateArgs),
-    /// Convert a frame log (or any recording) to the interchange CSV (°/s, g).
+    /// Convert a frame log or MIMU4444 stream (or any recording) to the interchange CSV (°/s, g), through a
+    /// calibration into the cluster frame.
     Import(ImportArgs),
+    /// Estimate calibration tables: multi-position static (MIMU4444), rate table (our board), or biases only.
+    Calibrate(CalibrateArgs),
     /// Run a frame log through the flight core (shared::Pipeline) and write the telemetry stream it would send.
     Replay(ReplayArgs),
     /// Decode a telemetry stream (CSP/KISS/postcard) to CSV or JSON lines.
@@ -122,18 +125,58 @@ struct SimulateArgs {
     /// FPGA base rate before decimation, Hz.
     #[arg(long, default_value_t = 9676.8)]
     base_rate_hz: f64,
+    /// True angular rate of the board, °/s (x,y,z; e.g. a rate table).
+    #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+    rate_dps: Option<Vec<f64>>,
+    /// True specific force, g (x,y,z; default the preset's).
+    #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+    accel_g: Option<Vec<f64>>,
     #[command(flatten)]
     effects: host_test::simcli::EffectArgs,
 }
 
 #[derive(clap::Args)]
+#[command(group(clap::ArgGroup::new("mode").required(true).args(["static_rec", "rate_table"])))]
+struct CalibrateArgs {
+    /// Multi-position static calibration from a MIMU4444 stream (poses found automatically).
+    #[arg(long = "static", value_name = "REC")]
+    static_rec: Option<PathBuf>,
+    /// Rate-table calibration of our board from 18 frame logs, in the order: for +x, −x, +y, −y, +z, −z up, rates
+    /// +Ω, −Ω, 0 about the vertical.
+    #[arg(long, num_args = 18, value_name = "REC")]
+    rate_table: Vec<PathBuf>,
+    /// Table rate Ω, °/s (rate-table mode).
+    #[arg(long, default_value_t = 100.0)]
+    omega: f64,
+    /// Output: .json / .toml (readable) or .bin (the table as uploaded: postcard with version and CRC).
+    #[arg(long)]
+    out: PathBuf,
+    /// Keep the matrices and rotations of this calibration, re-estimate only the biases (with --static).
+    #[arg(long, requires = "from")]
+    biases_only: bool,
+    /// The calibration whose matrices are kept (--biases-only).
+    #[arg(long)]
+    from: Option<PathBuf>,
+    /// Calibration id written into the table (reported in health telemetry).
+    #[arg(long, default_value_t = 1)]
+    cal_id: u32,
+    /// Shortest static interval, s.
+    #[arg(long, default_value_t = 15.0)]
+    min_static_s: f64,
+    /// Constant biases instead of biases with a linear drift during the record.
+    #[arg(long)]
+    no_drift: bool,
+}
+
+#[derive(clap::Args)]
 struct ImportArgs {
-    /// Input: FPGA frame log (.bin) or interchange CSV.
+    /// Input: FPGA frame log, MIMU4444 stream, or interchange CSV.
     input: PathBuf,
     /// Output CSV.
     #[arg(long)]
     out: PathBuf,
-    /// Calibration table (.bin) for raw inputs; the factory default otherwise.
+    /// Calibration (.bin, .json or .toml; 16 groups for frame logs, 8 IMUs for MIMU4444 streams). Without it: the
+    /// board's factory default, or the MIMU4444's nominal scales in each IMU's own frame.
     #[arg(long)]
     calib: Option<PathBuf>,
     /// FPGA base rate before decimation, Hz (frame logs).
@@ -231,6 +274,7 @@ fn main() -> ExitCode {
         Cmd::Demo(a) => demo(a),
         Cmd::Simulate(a) => simulate(a),
         Cmd::Import(a) => import(a),
+        Cmd::Calibrate(a) => calibrate_cmd(a),
         Cmd::Replay(a) => replay_cmd(a),
         Cmd::Decode(a) => decode(a),
         Cmd::Allan(a) => allan(a),
@@ -269,14 +313,26 @@ fn bar(len: u64, unit: &str) -> ProgressBar {
     pb
 }
 
+/// The board calibration for replay (16 groups).
 fn calib(path: &Option<PathBuf>) -> Result<Option<shared::calib::CalibrationTable<16>>> {
-    path.as_deref().map(load::load_calibration).transpose()
+    match any_calib(path)? {
+        None => Ok(None),
+        Some(load::Calibration::Board(t)) => Ok(Some(*t)),
+        Some(load::Calibration::Mimu(_)) => {
+            bail!("this is an 8-IMU (MIMU4444) calibration; frame logs need a 16-group one")
+        }
+    }
+}
+
+/// A calibration of either array, for commands that read any recording.
+fn any_calib(path: &Option<PathBuf>) -> Result<Option<load::Calibration>> {
+    path.as_deref().map(load::read_any_calibration).transpose()
 }
 
 fn import(a: ImportArgs) -> Result<()> {
-    let cal = calib(&a.calib)?;
+    let cal = any_calib(&a.calib)?;
     let pb = spinner("reading");
-    let loaded = load::load(&a.input, cal.as_ref(), mhz(a.base_rate_hz)?)?;
+    let loaded = load::load_with(&a.input, cal.as_ref(), mhz(a.base_rate_hz)?)?;
     pb.set_message("writing");
     loaded
         .recording
@@ -419,9 +475,9 @@ fn parse_window(s: &str) -> Result<(f64, f64)> {
 }
 
 fn allan(a: AllanArgs) -> Result<()> {
-    let cal = calib(&a.calib)?;
+    let cal = any_calib(&a.calib)?;
     let pb = spinner("reading");
-    let mut loaded = load::load(&a.recording, cal.as_ref(), 9_676_800)?;
+    let mut loaded = load::load_with(&a.recording, cal.as_ref(), 9_676_800)?;
     pb.finish_and_clear();
     for n in &loaded.notes {
         eprintln!("note: {n}");
@@ -575,9 +631,9 @@ fn plot_adev(path: &Path, series: &[adev::Series], source: &Path) -> Result<()> 
 
 fn diagnose(a: DiagnoseArgs) -> Result<()> {
     use host_test::diagnose::{self, Options, WeightRule, report};
-    let cal = calib(&a.calib)?;
+    let cal = any_calib(&a.calib)?;
     let pb = spinner("reading");
-    let mut loaded = load::load(&a.recording, cal.as_ref(), 9_676_800)?;
+    let mut loaded = load::load_with(&a.recording, cal.as_ref(), 9_676_800)?;
     for n in &loaded.notes {
         pb.println(format!("note: {n}"));
     }
@@ -636,6 +692,12 @@ fn simulate(a: SimulateArgs) -> Result<()> {
         (None, None) => (8.0 * 3600.0 * a.rate).round() as u64,
     };
     cfg.frames = simcli::frame_opts(a.rate, a.base_rate_hz);
+    if let Some(r) = &a.rate_dps {
+        cfg.rate_dps = [r[0], r[1], r[2]];
+    }
+    if let Some(g) = &a.accel_g {
+        cfg.accel_g = [g[0], g[1], g[2]];
+    }
     a.effects.apply(&mut cfg)?;
     let samples = cfg.samples;
     let pb = bar(samples, "samples");
@@ -671,5 +733,115 @@ fn demo(a: DemoArgs) -> Result<()> {
     pb.finish_and_clear();
     print!("{}", demo::report(&r, opts));
     println!("\noutputs in {}", a.out.display());
+    Ok(())
+}
+
+fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
+    use host_test::calibrate::{
+        self as cal, BiasModel, BiasOptions, DetectOptions, StaticCalOptions,
+    };
+    let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
+    if let Some(rec) = &a.static_rec {
+        let m = host_test::mimu::read(rec).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let detect = DetectOptions {
+            min_duration_s: a.min_static_s,
+            ..DetectOptions::default()
+        };
+        let poses = cal::detect_static(&m, &detect).map_err(cerr)?;
+        println!(
+            "{}: {} frames, {:.1} s; {} static intervals (window {} s, accel std < {} g, gyro std < {} °/s, ≥ {} s):",
+            rec.display(),
+            m.frames.len(),
+            m.duration_s(),
+            poses.len(),
+            detect.window_s,
+            detect.accel_std_max_g,
+            detect.gyro_std_max_dps,
+            detect.min_duration_s
+        );
+        for (i, p) in poses.iter().enumerate() {
+            let f = p.accel_g.first().copied().unwrap_or_default();
+            println!(
+                "  {:2}: {:7.1} … {:7.1} s ({:5.1} s), IMU 1 specific force [{:+.3} {:+.3} {:+.3}] g, change {:.2} mg",
+                i + 1,
+                p.start_s,
+                p.end_s,
+                p.end_s - p.start_s,
+                f[0],
+                f[1],
+                f[2],
+                p.accel_change_mg
+            );
+        }
+        let file = if a.biases_only {
+            let from = a
+                .from
+                .as_deref()
+                .context("--biases-only needs --from FILE")?;
+            let old = cal::read_calibration::<{ load::MIMU_IMUS }>(from).map_err(cerr)?;
+            let (new, upd) =
+                cal::reestimate_biases(&old, &poses, &BiasOptions::default()).map_err(cerr)?;
+            println!(
+                "biases re-estimated (matrices and rotations of {} kept); static |a| − 1 g RMS per IMU, mg:",
+                from.display()
+            );
+            for (i, (o, n)) in upd.old_rms_mg.iter().zip(&upd.new_rms_mg).enumerate() {
+                println!(
+                    "  IMU {}: {:.3} → {:.3} ({:?})",
+                    i + 1,
+                    o,
+                    n,
+                    upd.method.get(i)
+                );
+            }
+            new
+        } else {
+            let opts = StaticCalOptions {
+                bias_model: if a.no_drift {
+                    BiasModel::Constant
+                } else {
+                    BiasModel::LinearDrift
+                },
+                ..StaticCalOptions::default()
+            };
+            let c = cal::calibrate_static(&poses, &opts).map_err(cerr)?;
+            print!("{}", c.report.to_text());
+            c.to_file(a.cal_id, &rec.display().to_string())
+        };
+        cal::write_calibration::<{ load::MIMU_IMUS }>(&file, &a.out).map_err(cerr)?;
+        println!("calibration: {}", a.out.display());
+        return Ok(());
+    }
+    // Rate table: mean raw codes of every group in each of the 18 records.
+    let mut logs = Vec::with_capacity(a.rate_table.len());
+    for path in &a.rate_table {
+        let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+        let log = host_test::formats::framelog::FrameLog::decode(&bytes);
+        if log.frames.is_empty() {
+            bail!("{}: no valid frame", path.display());
+        }
+        logs.push(log);
+    }
+    let groups =
+        cal::board_records(&logs, a.omega).context("the rate-table mode needs 18 frame logs")?;
+    let (fits, file) =
+        cal::fit_rate_table::<16>(&groups, &cal::RateTableOptions::default(), a.cal_id)
+            .map_err(cerr)?;
+    println!(
+        "rate-table fit, Ω = {} °/s; per group the noise-limited accuracy the fit predicts (1σ):",
+        a.omega
+    );
+    for (g, f) in fits.iter().enumerate() {
+        let gse = f.gyro_bias_se_counts.iter().fold(0f64, |m, &x| m.max(x));
+        let ase = f.accel_bias_se_counts.iter().fold(0f64, |m, &x| m.max(x));
+        println!(
+            "  group {g:2}: gyro bias ±{gse:.3} counts, accel bias ±{ase:.3} counts; residual RMS gyro {:.2} counts",
+            f.gyro_residual_rms_counts
+                .iter()
+                .fold(0f64, |m, &x| m.max(x))
+        );
+    }
+    cal::write_calibration::<16>(&file, &a.out).map_err(cerr)?;
+    println!("calibration: {}", a.out.display());
     Ok(())
 }

@@ -68,7 +68,7 @@ impl FrameLog {
             {
                 let axes = group_cal.apply(&RawCounts::from_adc(codes));
                 for (v, col) in axes.iter().zip(out.iter_mut()) {
-                    col.push(f64::from(*v) * 1e-6); // µ°/s → °/s, µg → g
+                    col.push(f64::from(*v) / 1e6); // µ°/s → °/s, µg → g (exactly rounded)
                 }
             }
         }

@@ -80,7 +80,7 @@ impl TelemetryLog {
                 out,
                 "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:#x},{:#x},{}",
                 r.seq,
-                r.t_us as f64 * 1e-6,
+                r.t_us as f64 / 1e6,
                 r.frames,
                 r.rate_udps[0],
                 r.rate_udps[1],

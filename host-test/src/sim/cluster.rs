@@ -239,6 +239,9 @@ pub struct SimConfig {
     pub accel_g: [f64; 3],
     /// Spread of the true calibration between groups.
     pub cal: CalSpread,
+    /// Seed of the board's true calibration; `None` = `seed`. Records with the same `board_seed` and different
+    /// `seed` are the same board with independent noise.
+    pub board_seed: Option<u64>,
     /// Frame header fields.
     pub frames: FrameOpts,
 }
@@ -262,6 +265,7 @@ impl SimConfig {
             rate_dps: [0.0; 3],
             accel_g: [0.0, 0.0, 1.0],
             cal: CalSpread::NONE,
+            board_seed: None,
             frames: FrameOpts::default(),
         }
     }
@@ -543,9 +547,12 @@ impl Simulator {
                 ));
             }
         }
-        let mut spread_rng = stream(cfg.seed, 1);
-        let mut thermal_rng = stream(cfg.seed, 2);
-        let mut cal_rng = stream(cfg.seed, 3);
+        // The board's part spread, thermal coefficients and calibration follow `board_seed` when set, so that one
+        // simulated board can be recorded many times with fresh noise (rate-table calibration: 18 records of it).
+        let board_seed = cfg.board_seed.unwrap_or(cfg.seed);
+        let mut spread_rng = stream(board_seed, 1);
+        let mut thermal_rng = stream(board_seed, 2);
+        let mut cal_rng = stream(board_seed, 3);
         let mut sensors = Vec::with_capacity(GROUPS * CHANNELS);
         for g in 0..GROUPS {
             for ch in Channel::ALL {

@@ -1,0 +1,365 @@
+//! Readable calibration files and the table's binary form.
+//!
+//! [`CalibrationFile`] holds a calibration in `f64` physical units: matrices in °/s per count (gyro, 3×4) and
+//! g per count (accelerometer, 3×3), biases in counts, `cal_id`, the raw rails, and optional metadata (per-IMU
+//! rotation into the cluster frame, bias drifts, residuals). It is written as `.json` or `.toml`; `.bin` is the
+//! postcard form of `shared::calib::CalibrationTable::encode` (with CRC, no metadata). [`read_calibration`] and
+//! [`write_calibration`] choose the form by the file extension.
+//!
+//! Conversion to the table (Q19.12): gyro entries × 10⁶ (µ°/s per count), accelerometer entries × 10⁶ (µg per
+//! count), biases in counts, all × 2¹² and rounded to nearest; a value outside `i32` or a bias beyond ±65536
+//! counts is an [`CalibError::OutOfRange`].
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use shared::calib::{
+    ACCEL_RAW, BIAS_LIMIT_Q12, CalibrationTable, FRAC_BITS, GYRO_RAW, GroupCal, encoded_len_max,
+};
+
+use super::fit::{BiasModel, StaticCalibration};
+use super::report::ImuResidual;
+use super::{CalibError, Mat3, Vec3};
+
+/// Value of [`CalibrationFile::format`].
+pub const CALIBRATION_FORMAT: &str = "imu-calibration/1";
+
+const Q: f64 = (1u32 << FRAC_BITS) as f64;
+
+/// One group's calibration in physical units.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GroupCalF64 {
+    /// Gyro matrix, °/s per count; rows x, y, z; columns = raw gyro channels (MIMU4444: x, y, z, unused).
+    pub gyro_matrix_dps_per_count: [[f64; GYRO_RAW]; 3],
+    /// Gyro bias per raw channel, counts.
+    pub gyro_bias_counts: [f64; GYRO_RAW],
+    /// Accelerometer matrix, g per count.
+    pub accel_matrix_g_per_count: Mat3,
+    /// Accelerometer bias, counts.
+    pub accel_bias_counts: Vec3,
+}
+
+/// Metadata of one IMU of a static calibration.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ImuMetadata {
+    /// Rotation of the IMU's frame into the cluster frame.
+    pub rotation_to_cluster: Mat3,
+    /// Accelerometer bias drift during the calibration record, counts per second.
+    pub accel_bias_drift_counts_per_s: Vec3,
+    /// Gyro bias drift during the calibration record, counts per second.
+    pub gyro_bias_drift_counts_per_s: Vec3,
+    /// Residuals on the calibration poses.
+    pub residual: ImuResidual,
+}
+
+/// Metadata of a static calibration.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationMetadata {
+    /// Where the calibration comes from (free text, e.g. the record's path).
+    pub source: String,
+    /// Index of the IMU whose frame is the cluster frame (0 = IMU 1).
+    pub reference_imu: usize,
+    /// Accelerometer bias model of the fit.
+    pub bias_model: BiasModel,
+    /// Time of the record at which the biases hold, seconds.
+    pub t_ref_s: f64,
+    /// Static poses used.
+    pub poses: usize,
+    /// Later changes (e.g. biases re-estimated).
+    #[serde(default)]
+    pub history: Vec<String>,
+    /// Per IMU.
+    pub imus: Vec<ImuMetadata>,
+}
+
+/// A calibration in physical units (see the module docs).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationFile {
+    /// [`CALIBRATION_FORMAT`].
+    pub format: String,
+    /// Identifier (0 = factory).
+    pub cal_id: u32,
+    /// Lowest raw reading that is not saturated.
+    pub raw_min: i32,
+    /// Highest raw reading that is not saturated.
+    pub raw_max: i32,
+    /// Per group / IMU.
+    pub groups: Vec<GroupCalF64>,
+    /// Metadata (absent in files read from `.bin`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub metadata: Option<CalibrationMetadata>,
+}
+
+fn q12(x: f64, what: &str) -> Result<i32, CalibError> {
+    let v = (x * Q).round();
+    if v.is_finite() && v >= f64::from(i32::MIN) && v <= f64::from(i32::MAX) {
+        Ok(v as i32)
+    } else {
+        Err(CalibError::OutOfRange(format!(
+            "{what} = {x} does not fit Q19.12"
+        )))
+    }
+}
+
+fn bias_q12(x: f64, what: &str) -> Result<i32, CalibError> {
+    let v = q12(x, what)?;
+    if v.unsigned_abs() > BIAS_LIMIT_Q12 as u32 {
+        return Err(CalibError::OutOfRange(format!(
+            "{what} = {x} counts is beyond ±65536 counts"
+        )));
+    }
+    Ok(v)
+}
+
+impl GroupCalF64 {
+    /// To the fixed-point form.
+    pub fn to_q12(&self) -> Result<GroupCal, CalibError> {
+        let mut g = GroupCal::default();
+        for r in 0..3 {
+            for c in 0..GYRO_RAW {
+                g.gyro_matrix_q12[r][c] = q12(
+                    self.gyro_matrix_dps_per_count[r][c] * 1e6,
+                    "gyro matrix (µ°/s per count)",
+                )?;
+            }
+            for c in 0..ACCEL_RAW {
+                g.accel_matrix_q12[r][c] = q12(
+                    self.accel_matrix_g_per_count[r][c] * 1e6,
+                    "accelerometer matrix (µg per count)",
+                )?;
+            }
+        }
+        for c in 0..GYRO_RAW {
+            g.gyro_bias_q12[c] = bias_q12(self.gyro_bias_counts[c], "gyro bias")?;
+        }
+        for c in 0..ACCEL_RAW {
+            g.accel_bias_q12[c] = bias_q12(self.accel_bias_counts[c], "accelerometer bias")?;
+        }
+        Ok(g)
+    }
+
+    /// From the fixed-point form.
+    pub fn from_q12(g: &GroupCal) -> Self {
+        let f = |v: i32| f64::from(v) / Q;
+        Self {
+            gyro_matrix_dps_per_count: g.gyro_matrix_q12.map(|row| row.map(|v| f(v) * 1e-6)),
+            gyro_bias_counts: g.gyro_bias_q12.map(f),
+            accel_matrix_g_per_count: g.accel_matrix_q12.map(|row| row.map(|v| f(v) * 1e-6)),
+            accel_bias_counts: g.accel_bias_q12.map(f),
+        }
+    }
+}
+
+fn format_err(path: &Path, message: impl ToString) -> CalibError {
+    CalibError::Format {
+        path: path.to_path_buf(),
+        message: message.to_string(),
+    }
+}
+
+impl CalibrationFile {
+    /// The fixed-point table; the number of groups must be `G`.
+    pub fn to_table<const G: usize>(&self) -> Result<CalibrationTable<G>, CalibError> {
+        if self.groups.len() != G {
+            return Err(CalibError::Count {
+                what: "groups",
+                expected: G,
+                found: self.groups.len(),
+            });
+        }
+        let mut groups = [GroupCal::default(); G];
+        for (g, f) in groups.iter_mut().zip(&self.groups) {
+            *g = f.to_q12()?;
+        }
+        Ok(CalibrationTable {
+            cal_id: self.cal_id,
+            raw_min: self.raw_min,
+            raw_max: self.raw_max,
+            groups,
+        })
+    }
+
+    /// From a fixed-point table (no metadata).
+    pub fn from_table<const G: usize>(t: &CalibrationTable<G>) -> Self {
+        Self {
+            format: CALIBRATION_FORMAT.to_string(),
+            cal_id: t.cal_id,
+            raw_min: t.raw_min,
+            raw_max: t.raw_max,
+            groups: t.groups.iter().map(GroupCalF64::from_q12).collect(),
+            metadata: None,
+        }
+    }
+
+    /// Pretty JSON.
+    pub fn to_json(&self) -> Result<String, CalibError> {
+        serde_json::to_string_pretty(self).map_err(|e| format_err(Path::new("<json>"), e))
+    }
+
+    /// From JSON.
+    pub fn from_json(s: &str) -> Result<Self, CalibError> {
+        serde_json::from_str(s).map_err(|e| format_err(Path::new("<json>"), e))
+    }
+
+    /// TOML.
+    pub fn to_toml(&self) -> Result<String, CalibError> {
+        toml::to_string(self).map_err(|e| format_err(Path::new("<toml>"), e))
+    }
+
+    /// From TOML.
+    pub fn from_toml(s: &str) -> Result<Self, CalibError> {
+        toml::from_str(s).map_err(|e| format_err(Path::new("<toml>"), e))
+    }
+
+    /// The table's encoded form (`CalibrationTable::encode`, with CRC).
+    pub fn to_bin<const G: usize>(&self) -> Result<Vec<u8>, CalibError> {
+        let t = self.to_table::<G>()?;
+        let mut buf = vec![0u8; encoded_len_max(G)];
+        Ok(t.encode(&mut buf)?.to_vec())
+    }
+
+    /// From the table's encoded form (`CalibrationTable::decode`: CRC, version, group count, bias range).
+    pub fn from_bin<const G: usize>(bytes: &[u8]) -> Result<Self, CalibError> {
+        Ok(Self::from_table(&CalibrationTable::<G>::decode(bytes)?))
+    }
+}
+
+enum Kind {
+    Json,
+    Toml,
+    Bin,
+}
+
+fn kind(path: &Path) -> Result<Kind, CalibError> {
+    match path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+    {
+        Some("json") => Ok(Kind::Json),
+        Some("toml") => Ok(Kind::Toml),
+        Some("bin") => Ok(Kind::Bin),
+        _ => Err(format_err(
+            path,
+            "unknown calibration file extension (use .json, .toml or .bin)",
+        )),
+    }
+}
+
+/// Reads a calibration of `G` groups from `.json`, `.toml` or `.bin` (by extension).
+pub fn read_calibration<const G: usize>(
+    path: impl AsRef<Path>,
+) -> Result<CalibrationFile, CalibError> {
+    let path = path.as_ref();
+    let kind = kind(path)?;
+    let bytes = std::fs::read(path).map_err(|source| CalibError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let text = || std::str::from_utf8(&bytes).map_err(|e| format_err(path, e));
+    let file = match kind {
+        Kind::Json => serde_json::from_str(text()?).map_err(|e| format_err(path, e))?,
+        Kind::Toml => toml::from_str(text()?).map_err(|e| format_err(path, e))?,
+        Kind::Bin => CalibrationFile::from_bin::<G>(&bytes).map_err(|e| format_err(path, e))?,
+    };
+    if file.groups.len() != G {
+        return Err(format_err(
+            path,
+            format!("{} groups, expected {G}", file.groups.len()),
+        ));
+    }
+    if file.format != CALIBRATION_FORMAT {
+        return Err(format_err(
+            path,
+            format!("format {:?}, expected {CALIBRATION_FORMAT:?}", file.format),
+        ));
+    }
+    // Everything must also be representable in the table.
+    file.to_table::<G>().map_err(|e| format_err(path, e))?;
+    Ok(file)
+}
+
+/// Writes a calibration of `G` groups as `.json`, `.toml` or `.bin` (by extension; `.bin` drops the metadata).
+pub fn write_calibration<const G: usize>(
+    file: &CalibrationFile,
+    path: impl AsRef<Path>,
+) -> Result<(), CalibError> {
+    let path = path.as_ref();
+    if file.groups.len() != G {
+        return Err(CalibError::Count {
+            what: "groups",
+            expected: G,
+            found: file.groups.len(),
+        });
+    }
+    let bytes = match kind(path)? {
+        Kind::Json => file.to_json()?.into_bytes(),
+        Kind::Toml => file.to_toml()?.into_bytes(),
+        Kind::Bin => file.to_bin::<G>()?,
+    };
+    std::fs::write(path, bytes).map_err(|source| CalibError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+impl StaticCalibration {
+    /// The fixed-point table of `G` groups (`G` = the number of IMUs), via [`Self::to_file`].
+    pub fn to_table<const G: usize>(&self, cal_id: u32) -> Result<CalibrationTable<G>, CalibError> {
+        self.to_file(cal_id, "").to_table()
+    }
+
+    /// The readable form: gyro raw channels `[x, y, z, unused]` (4th column and bias 0), rails of `i16` words
+    /// (a reading of −32768 or 32767 is saturated), metadata from the fit. `source` is free text.
+    pub fn to_file(&self, cal_id: u32, source: &str) -> CalibrationFile {
+        let groups = self
+            .imus
+            .iter()
+            .map(|c| GroupCalF64 {
+                gyro_matrix_dps_per_count: c
+                    .gyro_matrix_dps_per_count
+                    .map(|r| [r[0], r[1], r[2], 0.0]),
+                gyro_bias_counts: [
+                    c.gyro_bias_counts[0],
+                    c.gyro_bias_counts[1],
+                    c.gyro_bias_counts[2],
+                    0.0,
+                ],
+                accel_matrix_g_per_count: c.accel_matrix_g_per_count,
+                accel_bias_counts: c.accel_bias_counts,
+            })
+            .collect();
+        let bias_model = if self.options.refine {
+            self.options.bias_model
+        } else {
+            BiasModel::Constant
+        };
+        CalibrationFile {
+            format: CALIBRATION_FORMAT.to_string(),
+            cal_id,
+            raw_min: i32::from(i16::MIN),
+            raw_max: i32::from(i16::MAX),
+            groups,
+            metadata: Some(CalibrationMetadata {
+                source: source.to_string(),
+                reference_imu: self.options.reference_imu,
+                bias_model,
+                t_ref_s: self.t_ref_s,
+                poses: self.report.poses,
+                history: Vec::new(),
+                imus: self
+                    .imus
+                    .iter()
+                    .zip(&self.report.imus)
+                    .map(|(c, r)| ImuMetadata {
+                        rotation_to_cluster: c.rotation,
+                        accel_bias_drift_counts_per_s: c.accel_bias_drift_counts_per_s,
+                        gyro_bias_drift_counts_per_s: c.gyro_bias_drift_counts_per_s,
+                        residual: *r,
+                    })
+                    .collect(),
+            }),
+        }
+    }
+}

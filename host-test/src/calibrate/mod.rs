@@ -1,0 +1,141 @@
+//! Lab calibration of an IMU array into the project's calibration model (`shared::calib`, `docs/calibration.md`):
+//! per group, gyro `ω = M_g·(raw_g − b_g)` (3×4) and accelerometer `a = M_a·(raw_a − b_a)` (3×3).
+//!
+//! Two procedures:
+//!
+//! * **Multi-position static calibration** of an array of 3-axis IMUs that share one rigid board (the MIMU4444
+//!   recordings, [`crate::mimu`]): [`detect_static`] finds the static poses, [`calibrate_static`] fits each
+//!   accelerometer (bias + matrix so that the static specific force is 1 g: ellipsoid fit, then
+//!   Levenberg–Marquardt; [`fit_magnitude`]), aligns all IMUs to one cluster frame (Wahba/Procrustes on the gravity
+//!   directions, [`align_cluster`]), optionally refines everything jointly with a linear bias drift in time
+//!   ([`refine_cluster`], the model that the warm-up in exp_6 needs), and takes gyro biases from the static
+//!   intervals and gyro axes from the accelerometer's rotation (same die). The cluster frame is the frame of the
+//!   reference IMU (IMU 1 by default): the rotation part of its calibration matrix is the identity.
+//! * **Rate-table calibration** of our 16-group board ([`fit_rate_table`]): six orientations × {+Ω, −Ω, 0}.
+//!
+//! [`reestimate_biases`] keeps a calibration's matrices and re-estimates the biases from a new static record
+//! (`--biases-only`); [`CalibrationFile`] is the readable form (`.json`, `.toml`) beside the table's encoded
+//! `.bin` form; [`ResidualReport`] is the per-IMU summary.
+//!
+//! Units are in the names: `_g` (specific force, g), `_mg`, `_dps` (°/s), `_deg`, `_counts` (raw sensor counts),
+//! `_s` (seconds). Matrices are row-major `[[f64; C]; 3]`, rows = calibrated axes x, y, z.
+
+mod biases;
+pub mod data;
+mod detect;
+mod file;
+mod fit;
+pub mod linalg;
+mod rate_table;
+mod records;
+mod report;
+
+pub use biases::{BiasMethod, BiasOptions, BiasUpdate, reestimate_biases};
+pub use detect::{DetectOptions, StaticInterval, detect_static};
+pub use file::{
+    CALIBRATION_FORMAT, CalibrationFile, CalibrationMetadata, GroupCalF64, ImuMetadata,
+    read_calibration, write_calibration,
+};
+pub use fit::{
+    BiasModel, ClusterAlignment, ClusterFit, ImuCal, MagnitudeFit, StaticCalOptions,
+    StaticCalibration, align_cluster, calibrate_static, fit_magnitude, refine_cluster,
+};
+pub use rate_table::{
+    AccelRecords, RateRecord, RateTableFit, RateTableOptions, UpAxis, fit_rate_table,
+    fit_rate_table_group, standard_inputs, two_point,
+};
+pub use records::board_records;
+pub use report::{ImuResidual, ResidualReport, static_residuals_mg};
+
+use std::fmt;
+use std::path::PathBuf;
+
+/// A 3-vector.
+pub type Vec3 = [f64; 3];
+/// A 3×3 matrix, row-major.
+pub type Mat3 = [[f64; 3]; 3];
+
+/// Why a calibration step failed.
+#[derive(Debug)]
+pub enum CalibError {
+    /// An option is out of its domain.
+    InvalidOption(&'static str),
+    /// An input is NaN or infinite.
+    NonFinite(&'static str),
+    /// Not enough static poses (or records) for the model.
+    TooFewPoses {
+        /// Needed.
+        needed: usize,
+        /// Given.
+        found: usize,
+    },
+    /// The poses (or records) do not determine the parameters (directions not spread, singular matrix).
+    Degenerate(&'static str),
+    /// Inputs disagree on the number of IMUs / groups.
+    Count {
+        /// What is counted.
+        what: &'static str,
+        /// Expected.
+        expected: usize,
+        /// Found.
+        found: usize,
+    },
+    /// A value does not fit the fixed-point table (Q19.12 `i32`, or a bias beyond ±65536 counts).
+    OutOfRange(String),
+    /// A calibration table failed to encode or decode.
+    Table(shared::calib::CalError),
+    /// A file could not be read or written.
+    Io {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// A file's contents could not be parsed (or written).
+    Format {
+        /// File.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+impl fmt::Display for CalibError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::InvalidOption(s) => write!(f, "invalid option: {s}"),
+            Self::NonFinite(s) => write!(f, "non-finite input: {s}"),
+            Self::TooFewPoses { needed, found } => {
+                write!(f, "too few static poses: {found}, need at least {needed}")
+            }
+            Self::Degenerate(s) => write!(f, "degenerate input: {s}"),
+            Self::Count {
+                what,
+                expected,
+                found,
+            } => write!(f, "{what}: expected {expected}, found {found}"),
+            Self::OutOfRange(s) => write!(f, "out of range: {s}"),
+            Self::Table(e) => write!(f, "calibration table: {e:?}"),
+            Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
+            Self::Format { path, message } => write!(f, "{}: {message}", path.display()),
+        }
+    }
+}
+
+impl std::error::Error for CalibError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::Io { source, .. } => Some(source),
+            _ => None,
+        }
+    }
+}
+
+impl From<shared::calib::CalError> for CalibError {
+    fn from(e: shared::calib::CalError) -> Self {
+        Self::Table(e)
+    }
+}
+
+#[cfg(test)]
+mod tests;
