@@ -76,6 +76,9 @@ struct DiagnoseArgs {
     /// Minimum number of independent averaging blocks for a tau to count in the gap.
     #[arg(long, default_value_t = 256)]
     min_blocks: usize,
+    /// MIMU4444 stream: diagnose the longest static interval (found as `calibrate --static` finds poses).
+    #[arg(long, conflicts_with = "window")]
+    longest_static: bool,
     /// Calibration table (.bin) for raw inputs.
     #[arg(long)]
     calib: Option<PathBuf>,
@@ -640,6 +643,25 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
     if let Some(w) = &a.window {
         let (s, e) = parse_window(w)?;
         loaded.recording = loaded.recording.window(s, e);
+    }
+    if a.longest_static {
+        let m = host_test::mimu::read(&a.recording)
+            .map_err(|e| anyhow::anyhow!("--longest-static needs a MIMU4444 stream: {e}"))?;
+        let poses = host_test::calibrate::detect_static(&m, &Default::default())
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        let p = poses
+            .iter()
+            .max_by(|x, y| (x.end_s - x.start_s).total_cmp(&(y.end_s - y.start_s)))
+            .context("no static interval found")?;
+        pb.println(format!(
+            "longest static interval: {:.1} … {:.1} s ({:.1} s of {} poses)",
+            p.start_s,
+            p.end_s,
+            p.end_s - p.start_s,
+            poses.len()
+        ));
+        // One frame interval past the end keeps the last frame.
+        loaded.recording = loaded.recording.window(p.start_s, p.end_s + 1e-3);
     }
     pb.set_message("fitting noise models and effects");
     let opts = Options {

@@ -2,12 +2,16 @@
 //! it shrinks once the effect is modelled — checked on held-out data (spec: `docs/diagnose.md`).
 //!
 //! Per axis (gyro x y z, accel x y z), on the first half of the record:
-//! 1. every sensor's octave OADEV is fitted with the four-term noise model (`noisefit`);
-//! 2. predictions of the cluster mean's Allan variance, all exact for the weights used (`Model`):
-//!    **P0** — N independent copies of the typical sensor (per τ, the median of the sensors' curves, fitted): the
-//!    seed paper's √N expectation made concrete; then candidate effects are added to it;
-//! 3. candidates, each fitted on the first half: `unequal_noise` / `outlier_sensor` (every sensor its own fitted
-//!    model), `common_mode` (a process shared by all sensors: white, flicker, quantisation terms of the mean
+//! 1. every sensor's octave OADEV is measured and fitted with the four-term noise model (`noisefit`, reported with
+//!    its misfit);
+//! 2. predictions of the cluster mean's Allan variance, all exact for the weights used (`Model`), built from the
+//!    sensors' **measured** first-half Allan variances at the same τ (not from the fitted models: where the
+//!    four-term model misfits — the MIMU4444's MPU9150 gyros by up to 38 % in deviation, from their on-chip
+//!    low-pass filter — a model-based prediction would report the misfit as a cluster gap):
+//!    **P0** — N independent copies of the typical sensor (per τ, the median over the sensors): the seed paper's
+//!    √N expectation made concrete; then candidate effects are added to it;
+//! 3. candidates, each fitted on the first half: `unequal_noise` / `outlier_sensor` (every sensor its own measured
+//!    curve), `common_mode` (a process shared by all sensors: white, flicker, quantisation terms of the mean
 //!    off-diagonal Allan covariance), `common_mode_drift` (its random-walk term), `block_common_mode` (shared within
 //!    a subset found from the leading eigenvector of the correlation matrix), `thermal` (bias ∝ temperature, one
 //!    coefficient per sensor, when `temp_c` exists);
@@ -31,7 +35,7 @@ use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, Ta
 use crate::formats::csv::{AXIS_NAMES, Recording, SensorKind};
 use crate::noisefit::{self, NoiseFit};
 use acov::AllanCov;
-use model::{Cross, Model};
+use model::{Cross, Model, Single};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -158,8 +162,11 @@ pub struct AxisReport {
     pub gap: [f64; 2],
     /// The gap per τ region.
     pub regions: Vec<Region>,
-    /// Typical single-sensor noise model.
+    /// Typical single-sensor noise model (fitted to the per-τ median of the sensors' curves).
     pub typical: NoiseFit,
+    /// RMS over sensors and τ of ln(measured / fitted) single-sensor deviation: how well the four-term model
+    /// describes these sensors (not used by the predictions).
+    pub model_misfit: f64,
     /// Effects kept for this axis.
     pub effects: Vec<String>,
 }
@@ -209,6 +216,9 @@ pub struct AxisCurves {
     /// Final model.
     pub after: Vec<f64>,
 }
+
+/// Shortest record accepted (each half must hold a few octaves of averaging blocks).
+pub const MIN_SAMPLES: usize = 1000;
 
 /// Median of a slice (NaN if empty).
 fn median(v: &[f64]) -> f64 {
@@ -316,7 +326,7 @@ fn lookup(table: &[(f64, f64)], tau: f64) -> Option<f64> {
 struct Candidate {
     kind: &'static str,
     /// Replaces the single-sensor models (heterogeneity) …
-    singles: Option<Vec<NoiseFit>>,
+    singles: Option<Vec<Single>>,
     /// … or adds a cross term.
     cross: Option<Cross>,
     groups: Vec<usize>,
@@ -408,9 +418,9 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
         .sample_interval_s()
         .ok_or("fewer than two samples, or time not increasing")?;
     let n = rec.len();
-    if n < 2000 {
+    if n < MIN_SAMPLES {
         return Err(format!(
-            "{n} samples: too short for a diagnosis (at least 2000; hours are better)"
+            "{n} samples: too short for a diagnosis (at least {MIN_SAMPLES}; hours are better)"
         ));
     }
     let half = n / 2;
@@ -469,6 +479,16 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
                 })
                 .collect();
         let typical = noisefit::fit(&typical_pts);
+        let table = |p: &[AnalysisPoint]| {
+            Single::Table(p.iter().map(|q| (q.tau_s, q.dev * q.dev)).collect())
+        };
+        let measured_singles: Vec<Single> = singles_pts.iter().map(|p| table(p)).collect();
+        let typical_single = table(&typical_pts);
+        let model_misfit = rms(singles_pts.iter().zip(&singles).flat_map(|(p, f)| {
+            p.iter()
+                .filter(|q| q.dev > 0.0)
+                .map(move |q| (q.dev / f.avar(q.tau_s).max(1e-300).sqrt()).ln())
+        }));
 
         // Weights.
         let wts: Vec<f64> = match opts.weights {
@@ -530,7 +550,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
             });
             cands.push(Candidate {
                 kind,
-                singles: Some(singles.clone()),
+                singles: Some(measured_singles.clone()),
                 cross: None,
                 groups,
                 params,
@@ -642,7 +662,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
 
         // 4. Greedy selection on the held-out half.
         let p0 = Model {
-            singles: vec![typical; ns],
+            singles: vec![typical_single.clone(); ns],
             cross: vec![],
         };
         let score = |m: &Model, meas: &Measured, t: &dyn Fn(f64) -> Option<f64>| {
@@ -736,6 +756,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
             ],
             regions,
             typical,
+            model_misfit,
             effects: chosen.iter().map(|c| c.kind.to_string()).collect(),
         });
         all_effects.extend(chosen.into_iter().map(|c| (w.kind, w.axis, c)));

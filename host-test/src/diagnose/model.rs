@@ -22,11 +22,33 @@ pub enum Cross {
     },
 }
 
+/// The Allan variance of one sensor: a fitted noise model, or measured values at given τ.
+#[derive(Clone, Debug)]
+pub enum Single {
+    /// The four-term model.
+    Fit(NoiseFit),
+    /// Measured (τ s, Allan variance) pairs; looked up at exactly these τ (NaN elsewhere).
+    Table(Vec<(f64, f64)>),
+}
+
+impl Single {
+    /// Allan variance at `tau_s`.
+    pub fn avar(&self, tau_s: f64) -> f64 {
+        match self {
+            Single::Fit(f) => f.avar(tau_s),
+            Single::Table(t) => t
+                .iter()
+                .find(|(x, _)| (x / tau_s - 1.0).abs() < 1e-9)
+                .map_or(f64::NAN, |p| p.1),
+        }
+    }
+}
+
 /// A prediction model of one axis.
 #[derive(Clone, Debug)]
 pub struct Model {
-    /// Noise model of each sensor.
-    pub singles: Vec<NoiseFit>,
+    /// Allan variance of each sensor.
+    pub singles: Vec<Single>,
     /// Cross terms.
     pub cross: Vec<Cross>,
 }
