@@ -217,6 +217,10 @@ pub struct AxisCurves {
     pub after: Vec<f64>,
 }
 
+/// Log-spread of sensor levels (deviation ratios) above which the others are not "homogeneous" and the effect is
+/// unequal noise rather than outlier sensors.
+const UNEQUAL_LN_SPREAD: f64 = 0.3;
+
 /// Shortest record accepted (each half must hold a few octaves of averaging blocks).
 pub const MIN_SAMPLES: usize = 1000;
 
@@ -536,13 +540,18 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
                 (l.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (l.len().max(2) - 1) as f64)
                     .sqrt()
             };
-            let (kind, groups) = if outliers.is_empty() {
-                ("unequal_noise", w.groups.clone())
-            } else {
+            // A few sensors (at most one in eight) far above an otherwise homogeneous rest are outliers; a broad
+            // spread of levels is unequal noise.
+            let few = !outliers.is_empty()
+                && outliers.len() <= (ns / 8).max(1)
+                && ln_spread < UNEQUAL_LN_SPREAD;
+            let (kind, groups) = if few {
                 (
                     "outlier_sensor",
                     outliers.iter().map(|&i| w.groups[i]).collect(),
                 )
+            } else {
+                ("unequal_noise", w.groups.clone())
             };
             let params = serde_json::json!({
                 "deviation_ratio_to_typical": (0..ns).map(|i| (w.groups[i].to_string(), ratio[i])).collect::<BTreeMap<_, _>>(),
