@@ -471,9 +471,10 @@ pub fn report(r: &DemoResult, opts: DemoOptions) -> String {
     );
     for (a, (x, p)) in r.table1.iter().zip(&SEED_TABLE).enumerate() {
         let (u, k, _, _) = unit(a);
+        let d = if a < 3 { 4 } else { 0 }; // °/s to 0.1 m°/s, µg to 1 µg
         let _ = writeln!(
             s,
-            "| {} | {:.4} {u} | {:.4} {u} | {:.2} [{:.2}, {:.2}] | {:.4} / {:.4} {u} = {:.1} |",
+            "| {} | {:.d$} {u} | {:.d$} {u} | {:.2} [{:.2}, {:.2}] | {:.d$} / {:.d$} {u} = {:.1} |",
             p.name,
             x.single * k,
             x.cluster * k,
