@@ -590,4 +590,6 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 pub const CAL_CHUNK: usize = CAL_CHUNK_MAX;
 
 #[cfg(test)]
+mod golden;
+#[cfg(test)]
 mod tests;
