@@ -21,7 +21,15 @@ fn bench(c: &mut Criterion) {
     g.sample_size(20);
     let mut an = Analyzer::new();
     g.bench_function("octave OADEV + noise id + EDF + CI, 545410 samples", |b| {
-        b.iter(|| black_box(an.analyze(DevKind::Oadev, &y, 1.0 / 18.9, &TauSpec::Octave, &Options::default())))
+        b.iter(|| {
+            black_box(an.analyze(
+                DevKind::Oadev,
+                &y,
+                1.0 / 18.9,
+                &TauSpec::Octave,
+                &Options::default(),
+            ))
+        })
     });
     g.finish();
 }

@@ -24,7 +24,15 @@ pub fn frames(n: usize) -> Vec<u8> {
                 *c = (*x as i64 + (s % 41) as i64 - 20) as u16;
             }
         }
-        out.extend_from_slice(&FrameRepr { seq: i as u16, decimation: 15, temp_cdeg: Some(2000), raw }.to_bytes());
+        out.extend_from_slice(
+            &FrameRepr {
+                seq: i as u16,
+                decimation: 15,
+                temp_cdeg: Some(2000),
+                raw,
+            }
+            .to_bytes(),
+        );
     }
     out
 }

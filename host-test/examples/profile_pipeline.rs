@@ -6,7 +6,10 @@ use shared::wire::FrameRepr;
 use shared::wire::frame::{GROUPS, RAW_PER_GROUP};
 
 fn main() {
-    let n: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(20_000);
+    let n: usize = std::env::args()
+        .nth(1)
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(20_000);
     let codes = board::nominal_codes([0.0; 3], [0.0, 0.0, -1.0]);
     let mut s = 0x1234_5678_9abc_def0u64;
     let mut bytes = Vec::with_capacity(n * 240);
@@ -20,7 +23,15 @@ fn main() {
                 *c = (*x as i64 + (s % 41) as i64 - 20) as u16;
             }
         }
-        bytes.extend_from_slice(&FrameRepr { seq: i as u16, decimation: 15, temp_cdeg: Some(2000), raw }.to_bytes());
+        bytes.extend_from_slice(
+            &FrameRepr {
+                seq: i as u16,
+                decimation: 15,
+                temp_cdeg: Some(2000),
+                raw,
+            }
+            .to_bytes(),
+        );
     }
     let mut p = host_pipeline(PipelineConfig::DEFAULT, CalibrationTable::factory());
     let t = std::time::Instant::now();
@@ -33,5 +44,8 @@ fn main() {
         }
     }
     let dt = t.elapsed().as_secs_f64();
-    println!("{n} frames, {outputs} outputs, {:.0} frames/s", n as f64 / dt);
+    println!(
+        "{n} frames, {outputs} outputs, {:.0} frames/s",
+        n as f64 / dt
+    );
 }
