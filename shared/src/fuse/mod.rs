@@ -153,37 +153,43 @@ pub struct FaultCounts {
     pub outlier: u32,
 }
 
+/// Noise-estimator state of one axis of all `G` groups, as arrays over groups (so that the per-axis loops run over
+/// contiguous memory) with bitmasks over groups (bit g = group g).
 #[derive(Clone, Copy, Debug)]
-struct AxisState {
+struct AxisState<const G: usize> {
     /// EWMA of Δr²/2, (output unit)².
-    noise_var: u64,
+    noise_var: [u64; G],
     /// Noise estimate updates, saturating.
-    updates: u32,
-    last_resid: i32,
-    resid_valid: bool,
-    weight_q16: u32,
+    updates: [u32; G],
+    /// Residual from the median in the last sample that used the group.
+    last_resid: [i32; G],
+    /// Groups whose `last_resid` is from the previous sample.
+    resid_valid: u32,
+    /// Weights, Q16.
+    weight_q16: [u32; G],
 }
 
-impl AxisState {
+impl<const G: usize> AxisState<G> {
     const NEW: Self = Self {
-        noise_var: 0,
-        updates: 0,
-        last_resid: 0,
-        resid_valid: false,
-        weight_q16: 1 << 16,
+        noise_var: [0; G],
+        updates: [0; G],
+        last_resid: [0; G],
+        resid_valid: 0,
+        weight_q16: [1 << 16; G],
     };
 }
 
+/// Raw-channel watch of one group: the last code of each channel and how often it repeated since it changed.
 #[derive(Clone, Copy, Debug)]
 struct RawWatch {
-    last: i32,
-    repeats: u16,
+    last: [i32; RAW_CHANNELS],
+    repeats: [u16; RAW_CHANNELS],
 }
 
 impl RawWatch {
     const NEW: Self = Self {
-        last: i32::MIN,
-        repeats: 0,
+        last: [i32::MIN; RAW_CHANNELS],
+        repeats: [0; RAW_CHANNELS],
     };
 }
 
@@ -226,9 +232,9 @@ const VAR_LIMIT: u64 = 1 << 47;
 #[derive(Clone, Debug)]
 pub struct Fusion<const G: usize> {
     config: FusionConfig,
-    axes: [[AxisState; AXES]; G],
+    axes: [AxisState<G>; AXES],
     scale: [AxisScale; AXES],
-    raw: [[RawWatch; RAW_CHANNELS]; G],
+    raw: [RawWatch; G],
     /// `[group][0 = gyro, 1 = accel]`.
     faults: [[FaultCounts; 2]; G],
     samples: u32,
@@ -259,17 +265,124 @@ fn median_sorted(v: &[i32]) -> i32 {
     }
 }
 
+/// Median absolute deviation from `median` of the sorted `v` (`median` = `median_sorted(v)`), rounded as
+/// [`median_sorted`], each deviation saturated to `i32::MAX`; 0 for an empty slice.
+///
+/// Selection instead of a second sort: `v[..n/2]` lie at or below the median and `v[n/2..]` at or above it, so the
+/// deviations of the lower part, read downwards, and of the upper part, read upwards, are two sorted sequences;
+/// merging them for n/2 + 1 steps gives the middle one (and the one before it, for even n).
+fn mad_sorted(v: &[i32], median: i32) -> i32 {
+    let n = v.len();
+    let m = i64::from(median);
+    // Next deviation below: v[lo - 1]; above: v[hi].
+    let (mut lo, mut hi) = (n / 2, n / 2);
+    let (mut prev, mut cur) = (0i64, 0i64);
+    for _ in 0..=n / 2 {
+        let below = lo
+            .checked_sub(1)
+            .and_then(|i| v.get(i))
+            .map_or(i64::MAX, |&x| m - i64::from(x));
+        let above = v.get(hi).map_or(i64::MAX, |&x| i64::from(x) - m);
+        prev = cur;
+        if below <= above {
+            cur = below;
+            lo = lo.saturating_sub(1);
+        } else {
+            cur = above;
+            hi += 1;
+        }
+    }
+    let sat = |d: i64| d.min(i64::from(i32::MAX));
+    match n % 2 {
+        _ if n == 0 => 0,
+        1 => sat(cur) as i32,
+        _ => div_round(sat(prev) + sat(cur), 2),
+    }
+}
+
+/// Compare-exchange of `v[i]` and `v[j]` (`i` < `j` < 16, constants after inlining).
+#[inline(always)]
+fn cmpx(v: &mut [i32; 16], i: usize, j: usize) {
+    let (a, b) = (v[i & 15], v[j & 15]);
+    v[i & 15] = a.min(b);
+    v[j & 15] = a.max(b);
+}
+
+/// Sorts 16 values with an optimal sorting network (60 compare-exchanges in 10 layers, M. W. Green; listed by
+/// B. Dobbelaere): branch-free, no data-dependent control flow.
+fn sort16(v: &mut [i32; 16]) {
+    macro_rules! layer {
+        ($(($i:literal, $j:literal)),*) => { $(cmpx(v, $i, $j);)* };
+    }
+    layer!(
+        (0, 13),
+        (1, 12),
+        (2, 15),
+        (3, 14),
+        (4, 8),
+        (5, 6),
+        (7, 11),
+        (9, 10)
+    );
+    layer!(
+        (0, 5),
+        (1, 7),
+        (2, 9),
+        (3, 4),
+        (6, 13),
+        (8, 14),
+        (10, 15),
+        (11, 12)
+    );
+    layer!(
+        (0, 1),
+        (2, 3),
+        (4, 5),
+        (6, 8),
+        (7, 9),
+        (10, 11),
+        (12, 13),
+        (14, 15)
+    );
+    layer!(
+        (0, 2),
+        (1, 3),
+        (4, 10),
+        (5, 11),
+        (6, 7),
+        (8, 9),
+        (12, 14),
+        (13, 15)
+    );
+    layer!((1, 2), (3, 12), (4, 6), (5, 7), (8, 10), (9, 11), (13, 14));
+    layer!((1, 4), (2, 6), (5, 8), (7, 10), (9, 13), (11, 14));
+    layer!((2, 4), (3, 6), (9, 12), (11, 13));
+    layer!((3, 5), (6, 8), (7, 9), (10, 12));
+    layer!((3, 4), (5, 6), (7, 8), (9, 10), (11, 12));
+    layer!((6, 7), (8, 9));
+}
+
+/// Sorts `v` ascending: the network for 16 values, the library sort otherwise.
+fn sort_small<const G: usize>(v: &mut [i32; G]) {
+    match <&mut [i32; 16]>::try_from(v.as_mut_slice()) {
+        Ok(v16) => sort16(v16),
+        Err(_) => v.sort_unstable(),
+    }
+}
+
 impl<const G: usize> Fusion<G> {
     const FITS: () = assert!(G >= 1 && G <= MAX_GROUPS, "1 ≤ G ≤ 32");
+    /// Bit g set for every group.
+    const ALL: u32 = u32::MAX >> (32 - G);
 
     /// A fusion with no history.
     pub const fn new(config: FusionConfig) -> Self {
         let () = Self::FITS;
         Self {
             config,
-            axes: [[AxisState::NEW; AXES]; G],
+            axes: [AxisState::NEW; AXES],
             scale: [AxisScale::NEW; AXES],
-            raw: [[RawWatch::NEW; RAW_CHANNELS]; G],
+            raw: [RawWatch::NEW; G],
             faults: [[FaultCounts {
                 saturated: 0,
                 stuck: 0,
@@ -297,13 +410,16 @@ impl<const G: usize> Fusion<G> {
 
     /// Running white-noise variance estimate of `group`'s `axis`, (output unit)², once settled.
     pub fn noise_var(&self, group: usize, axis: usize) -> Option<u64> {
-        let s = self.axes.get(group)?.get(axis)?;
-        (s.updates >= 1 << self.config.noise_shift.min(31)).then_some(s.noise_var)
+        let s = self.axes.get(axis)?;
+        let updates = *s.updates.get(group)?;
+        (updates >= 1 << self.config.noise_shift.min(31))
+            .then(|| s.noise_var.get(group).copied())
+            .flatten()
     }
 
     /// Current weight of `group`'s `axis`, Q16 (the best sensor has 2¹⁶).
     pub fn weight_q16(&self, group: usize, axis: usize) -> Option<u32> {
-        Some(self.axes.get(group)?.get(axis)?.weight_q16)
+        self.axes.get(axis)?.weight_q16.get(group).copied()
     }
 
     /// Fuses one sample: `raw` as read (for rails and stuck channels), `axes` the groups' calibrated outputs.
@@ -314,45 +430,45 @@ impl<const G: usize> Fusion<G> {
         table: &CalibrationTable<G>,
     ) -> FusedSample {
         let mut out = FusedSample::default();
-        // Sensor-level exclusion: [gyro, accel] per group.
-        let mut excluded = [[false; 2]; G];
-        for (g, ((r, watch), ex)) in raw
-            .iter()
-            .zip(self.raw.iter_mut())
-            .zip(excluded.iter_mut())
-            .enumerate()
-        {
-            let bit = 1u32 << g;
-            let channels = r.gyro.iter().chain(&r.accel);
-            let mut stuck = [false; 2];
-            let mut sat = [false; 2];
-            for (ch, (&code, w)) in channels.zip(watch.iter_mut()).enumerate() {
+        // Sensor-level exclusion, bitmasks over groups per kind [gyro, accel].
+        let stuck_repeats = u32::from(self.config.stuck_window.max(2)) - 1;
+        let (mut sat, mut stuck) = ([0u32; 2], [0u32; 2]);
+        for (g, (r, watch)) in raw.iter().zip(self.raw.iter_mut()).enumerate() {
+            let [g0, g1, g2, g3] = r.gyro;
+            let [a0, a1, a2] = r.accel;
+            let codes = [g0, g1, g2, g3, a0, a1, a2];
+            let mut group_sat = [false; 2];
+            let mut group_stuck = [false; 2];
+            for (ch, ((&code, last), repeats)) in codes
+                .iter()
+                .zip(watch.last.iter_mut())
+                .zip(watch.repeats.iter_mut())
+                .enumerate()
+            {
                 let kind = usize::from(ch >= crate::calib::GYRO_RAW);
-                if code == w.last {
-                    w.repeats = w.repeats.saturating_add(1);
+                *repeats = if code == *last {
+                    repeats.saturating_add(1)
                 } else {
-                    *w = RawWatch {
-                        last: code,
-                        repeats: 0,
-                    };
-                }
-                stuck[kind] |=
-                    u32::from(w.repeats) + 1 >= u32::from(self.config.stuck_window.max(2));
-                sat[kind] |= table.saturated(code);
+                    0
+                };
+                *last = code;
+                group_stuck[kind] |= u32::from(*repeats) >= stuck_repeats;
+                group_sat[kind] |= table.saturated(code);
             }
-            if !self.config.robust {
-                continue;
+            for kind in 0..2 {
+                sat[kind] |= u32::from(group_sat[kind]) << g;
+                stuck[kind] |= u32::from(group_stuck[kind]) << g;
             }
+        }
+        let mut excluded = [0u32; 2];
+        if self.config.robust {
             for (kind, faults) in [&mut out.health.gyro, &mut out.health.accel]
                 .into_iter()
                 .enumerate()
             {
-                if sat[kind] {
-                    faults.saturated |= bit;
-                } else if stuck[kind] {
-                    faults.stuck |= bit;
-                }
-                ex[kind] = sat[kind] || stuck[kind];
+                faults.saturated = sat[kind];
+                faults.stuck = stuck[kind] & !sat[kind];
+                excluded[kind] = sat[kind] | stuck[kind];
             }
         }
 
@@ -362,124 +478,141 @@ impl<const G: usize> Fusion<G> {
                     .samples
                     .is_multiple_of(u32::from(self.config.weight_interval.max(1))));
         let mut outlier = [0u32; 2];
-        for (a, (value, used)) in out.axes.iter_mut().zip(out.used.iter_mut()).enumerate() {
+        for (a, ((value, used), used_mask)) in out
+            .axes
+            .iter_mut()
+            .zip(out.used.iter_mut())
+            .zip(out.used_mask.iter_mut())
+            .enumerate()
+        {
             let kind = usize::from(a >= 3);
-            let (n, fused, out_mask, used_mask) =
-                self.fuse_axis(a, axes, &excluded, kind, recompute);
-            *value = fused;
-            *used = n;
+            let column: [i32; G] = core::array::from_fn(|g| axes[g][a]);
+            let (n, fused, out_mask, mask) =
+                self.fuse_axis(a, &column, Self::ALL & !excluded[kind], kind, recompute);
+            (*value, *used, *used_mask) = (fused, n, mask);
             outlier[kind] |= out_mask;
-            if let Some(m) = out.used_mask.get_mut(a) {
-                *m = used_mask;
-            }
         }
         out.health.gyro.outlier = outlier[0];
         out.health.accel.outlier = outlier[1];
 
-        for (g, counts) in self.faults.iter_mut().enumerate() {
-            let bit = 1u32 << g;
-            for (c, h) in counts.iter_mut().zip([&out.health.gyro, &out.health.accel]) {
-                let bump = |x: &mut u32, mask: u32| *x = x.wrapping_add(u32::from(mask & bit != 0));
-                bump(&mut c.saturated, h.saturated);
-                bump(&mut c.stuck, h.stuck);
-                bump(&mut c.outlier, h.outlier);
+        for (kind, h) in [out.health.gyro, out.health.accel].iter().enumerate() {
+            let mut any = h.any();
+            while any != 0 {
+                let g = any.trailing_zeros();
+                any &= any - 1;
+                if let Some(c) = self
+                    .faults
+                    .get_mut(g as usize)
+                    .and_then(|c| c.get_mut(kind))
+                {
+                    let bump = |x: &mut u32, mask: u32| *x = x.wrapping_add((mask >> g) & 1);
+                    bump(&mut c.saturated, h.saturated);
+                    bump(&mut c.stuck, h.stuck);
+                    bump(&mut c.outlier, h.outlier);
+                }
             }
         }
         self.samples = self.samples.wrapping_add(1);
         out
     }
 
-    /// One axis: returns (sensors used, fused value, outlier mask, used mask).
+    /// One axis: `x` the groups' values, `candidates` the groups not excluded (bitmask); returns (sensors used,
+    /// fused value, outlier mask, used mask).
     fn fuse_axis(
         &mut self,
         a: usize,
-        axes: &[[i32; AXES]; G],
-        excluded: &[[bool; 2]; G],
+        x: &[i32; G],
+        candidates: u32,
         kind: usize,
         recompute: bool,
     ) -> (u8, i32, u32, u32) {
-        // Candidates: value and group, in a fixed-size buffer.
-        let mut vals = [0i32; G];
-        let mut n = 0;
-        for (v, ex) in axes.iter().zip(excluded) {
-            if let (false, Some(slot), Some(&x)) = (ex[kind], vals.get_mut(n), v.get(a)) {
-                *slot = x;
-                n += 1;
-            }
-        }
+        let Some(state) = self.axes.get_mut(a) else {
+            return (0, 0, 0, 0);
+        };
+        let n = candidates.count_ones() as usize;
         if n == 0 {
-            self.forget_residuals(a);
+            state.resid_valid = 0;
             return (0, 0, 0, 0);
         }
-        let mut sorted = vals;
-        let sorted = sorted.get_mut(..n).unwrap_or(&mut []);
-        sorted.sort_unstable();
+        // Candidates sorted, then padding that sorts after them.
+        let mut sorted: [i32; G] = core::array::from_fn(|g| {
+            if candidates >> g & 1 != 0 {
+                x[g]
+            } else {
+                i32::MAX
+            }
+        });
+        sort_small(&mut sorted);
+        let sorted = sorted.get(..n).unwrap_or(&[]);
         let median = median_sorted(sorted);
+        let med = i64::from(median);
 
         // Robust scale: MAD of the candidates.
         let mut outliers = 0u32;
         if self.config.robust && n >= 3 {
-            let mut dev = [0i32; G];
-            for (d, &x) in dev.iter_mut().zip(sorted.iter()) {
-                *d = (i64::from(x) - i64::from(median))
-                    .unsigned_abs()
-                    .min(i32::MAX as u64) as i32;
-            }
-            let dev = dev.get_mut(..n).unwrap_or(&mut []);
-            dev.sort_unstable();
             let scale = self
                 .scale
                 .get_mut(a)
-                .map_or(0, |s| s.update(i64::from(median_sorted(dev))));
-            // |x − med| > k · 1.4826 · scale  ⇔  |x − med| · 2²⁴ > k_q8 · scale · 1.4826_q16
+                .map_or(0, |s| s.update(i64::from(mad_sorted(sorted, median))));
+            // |x − med| > k · 1.4826 · scale  ⇔  |x − med| · 2²⁴ > k_q8 · scale · 1.4826_q16; for a limit L ≥ 0 and
+            // integer distances that is |x − med| > ⌊L / 2²⁴⌋ (a negative L, possible only by wrapping, passes all).
             let limit_q24 = i64::from(self.config.outlier_sigmas_q8) * scale * MAD_TO_SIGMA_Q16;
             let floor = i64::from(self.config.outlier_floor.get(kind).copied().unwrap_or(0));
-            for (g, (v, ex)) in axes.iter().zip(excluded).enumerate() {
-                let Some(&x) = v.get(a) else { continue };
-                let dist = (i64::from(x) - i64::from(median)).abs();
-                if !ex[kind] && dist > floor && (dist << 24) > limit_q24 {
-                    outliers |= 1 << g;
-                }
+            let threshold = if limit_q24 >= 0 {
+                floor.max(limit_q24 >> 24)
+            } else {
+                floor
+            };
+            for (g, &v) in x.iter().enumerate() {
+                let dist = (i64::from(v) - med).abs();
+                outliers |= u32::from(dist > threshold) << g;
             }
+            outliers &= candidates;
         }
+        let used = candidates & !outliers;
 
         // Noise estimates and weights of the sensors used.
         let shift = u32::from(self.config.noise_shift.min(31));
         let settled = 1u32 << shift;
         let mut var_min = u64::MAX;
         let mut all_settled = true;
-        for (g, (v, ex)) in axes.iter().zip(excluded).enumerate() {
-            let Some(state) = self.axes.get_mut(g).and_then(|s| s.get_mut(a)) else {
-                continue;
-            };
-            let used = !ex[kind] && outliers & (1 << g) == 0;
-            let Some(&x) = v.get(a) else { continue };
-            if !used {
-                state.resid_valid = false;
+        let valid = state.resid_valid;
+        for (g, (((&v, var), updates), last)) in x
+            .iter()
+            .zip(state.noise_var.iter_mut())
+            .zip(state.updates.iter_mut())
+            .zip(state.last_resid.iter_mut())
+            .enumerate()
+        {
+            if used >> g & 1 == 0 {
                 continue;
             }
-            let resid = (i64::from(x) - i64::from(median))
-                .clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
-            if state.resid_valid {
-                let d = i64::from(resid) - i64::from(state.last_resid);
-                let sample = (d.unsigned_abs().saturating_mul(d.unsigned_abs()) / 2).min(VAR_LIMIT);
-                if sample >= state.noise_var {
-                    state.noise_var += (sample - state.noise_var) >> shift;
+            let resid = (i64::from(v) - med).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
+            if valid >> g & 1 != 0 {
+                // |d| < 2³²: the square fits in u64.
+                let d = (i64::from(resid) - i64::from(*last)).unsigned_abs();
+                let sample = (d * d / 2).min(VAR_LIMIT);
+                *var = if sample >= *var {
+                    *var + ((sample - *var) >> shift)
                 } else {
-                    state.noise_var -= (state.noise_var - sample) >> shift;
-                }
-                state.updates = state.updates.saturating_add(1);
+                    *var - ((*var - sample) >> shift)
+                };
+                *updates = updates.saturating_add(1);
             }
-            state.last_resid = resid;
-            state.resid_valid = true;
-            all_settled &= state.updates >= settled;
-            var_min = var_min.min(state.noise_var.max(1));
+            *last = resid;
+            all_settled &= *updates >= settled;
+            var_min = var_min.min((*var).max(1));
         }
+        state.resid_valid = used;
         if recompute && all_settled {
-            for (state, ex) in self.axes.iter_mut().map(|s| s.get_mut(a)).zip(excluded) {
-                if let (Some(state), false) = (state, ex[kind]) {
-                    state.weight_q16 =
-                        ((var_min << 16) / state.noise_var.max(1)).clamp(1, 1 << 16) as u32;
+            for (g, (w, &var)) in state
+                .weight_q16
+                .iter_mut()
+                .zip(&state.noise_var)
+                .enumerate()
+            {
+                if candidates >> g & 1 != 0 {
+                    *w = ((var_min << 16) / var.max(1)).clamp(1, 1 << 16) as u32;
                 }
             }
             self.weights_ready = true;
@@ -487,35 +620,25 @@ impl<const G: usize> Fusion<G> {
 
         // The mean over the used sensors.
         let weighted = self.config.mode == FusionMode::InverseVariance && all_settled;
-        let (mut num, mut den, mut used, mut mask) = (0i64, 0i64, 0u8, 0u32);
-        for (g, (v, ex)) in axes.iter().zip(excluded).enumerate() {
-            let (Some(&x), Some(state)) = (v.get(a), self.axes.get(g).and_then(|s| s.get(a)))
-            else {
-                continue;
-            };
-            if ex[kind] || outliers & (1 << g) != 0 {
-                continue;
+        let (mut num, mut den) = (0i64, 0i64);
+        if weighted {
+            for (g, (&v, &w)) in x.iter().zip(&state.weight_q16).enumerate() {
+                let w = if used >> g & 1 != 0 { i64::from(w) } else { 0 };
+                num += w * i64::from(v);
+                den += w;
             }
-            let w = if weighted {
-                i64::from(state.weight_q16)
-            } else {
-                1
-            };
-            num += w * i64::from(x);
-            den += w;
-            used += 1;
-            mask |= 1 << g;
+        } else {
+            for (g, &v) in x.iter().enumerate() {
+                if used >> g & 1 != 0 {
+                    num += i64::from(v);
+                }
+            }
+            den = i64::from(used.count_ones());
         }
         if den == 0 {
             return (0, 0, outliers, 0);
         }
-        (used, div_round(num, den), outliers, mask)
-    }
-
-    fn forget_residuals(&mut self, a: usize) {
-        for s in self.axes.iter_mut().filter_map(|s| s.get_mut(a)) {
-            s.resid_valid = false;
-        }
+        (used.count_ones() as u8, div_round(num, den), outliers, used)
     }
 }
 
