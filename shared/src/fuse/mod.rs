@@ -153,16 +153,44 @@ pub struct FaultCounts {
     pub outlier: u32,
 }
 
-/// Noise-estimator state of one axis of all `G` groups, as arrays over groups (so that the per-axis loops run over
-/// contiguous memory) with bitmasks over groups (bit g = group g).
+/// Noise estimator of one sensor axis.
+#[derive(Clone, Copy, Debug)]
+struct NoiseEst {
+    /// EWMA of Δr²/2, (output unit)².
+    var: u64,
+    /// Updates, saturating.
+    updates: u32,
+    /// Residual from the median in the last sample that used the sensor.
+    last_resid: i32,
+}
+
+impl NoiseEst {
+    const NEW: Self = Self {
+        var: 0,
+        updates: 0,
+        last_resid: 0,
+    };
+
+    /// Averages in `Δr²/2` for the new residual `resid` (`last_resid` valid).
+    fn update(&mut self, resid: i32, shift: u32) {
+        // |d| < 2³²: the square fits in u64.
+        let d = (i64::from(resid) - i64::from(self.last_resid)).unsigned_abs();
+        let sample = (d * d / 2).min(VAR_LIMIT);
+        // var += (sample − var) / 2^shift, the quotient rounded toward zero; both terms ≤ 2⁴⁷, so the difference
+        // and the update fit in i64. Branch-free: sign s ∈ {0, −1}, |x| = (x ^ s) − s.
+        let diff = sample as i64 - self.var as i64;
+        let s = diff >> 63;
+        let step = (((diff ^ s) - s) as u64 >> shift) as i64;
+        self.var = (self.var as i64 + ((step ^ s) - s)) as u64;
+        self.updates = self.updates.saturating_add(1);
+    }
+}
+
+/// Noise-estimator state of one axis of all `G` groups, with bitmasks over groups (bit g = group g).
 #[derive(Clone, Copy, Debug)]
 struct AxisState<const G: usize> {
-    /// EWMA of Δr²/2, (output unit)².
-    noise_var: [u64; G],
-    /// Noise estimate updates, saturating.
-    updates: [u32; G],
-    /// Residual from the median in the last sample that used the group.
-    last_resid: [i32; G],
+    /// Per group.
+    est: [NoiseEst; G],
     /// Groups whose `last_resid` is from the previous sample.
     resid_valid: u32,
     /// Weights, Q16.
@@ -171,25 +199,25 @@ struct AxisState<const G: usize> {
 
 impl<const G: usize> AxisState<G> {
     const NEW: Self = Self {
-        noise_var: [0; G],
-        updates: [0; G],
-        last_resid: [0; G],
+        est: [NoiseEst::NEW; G],
         resid_valid: 0,
         weight_q16: [1 << 16; G],
     };
 }
 
-/// Raw-channel watch of one group: the last code of each channel and how often it repeated since it changed.
+/// Raw-channel watch of one group: the last code of each channel and how often it repeated since it changed
+/// (saturating at `u16::MAX`). Eight lanes for the seven channels, so that the update is two 4-lane vector
+/// operations where the target has them; lane 7 is padding, never reported.
 #[derive(Clone, Copy, Debug)]
 struct RawWatch {
-    last: [i32; RAW_CHANNELS],
-    repeats: [u16; RAW_CHANNELS],
+    last: [i32; RAW_LANES],
+    repeats: [u32; RAW_LANES],
 }
 
 impl RawWatch {
     const NEW: Self = Self {
-        last: [i32::MIN; RAW_CHANNELS],
-        repeats: [0; RAW_CHANNELS],
+        last: [i32::MIN; RAW_LANES],
+        repeats: [0; RAW_LANES],
     };
 }
 
@@ -225,6 +253,12 @@ impl AxisScale {
 }
 
 const RAW_CHANNELS: usize = crate::calib::GYRO_RAW + crate::calib::ACCEL_RAW;
+/// Lanes of a [`RawWatch`]: the raw channels and padding.
+const RAW_LANES: usize = 8;
+/// Raw channels of the gyros, as bits over channels.
+const GYRO_CHANNELS: u32 = (1 << crate::calib::GYRO_RAW) - 1;
+/// Raw channels of the accelerometer.
+const ACCEL_CHANNELS: u32 = ((1 << RAW_CHANNELS) - 1) & !GYRO_CHANNELS;
 /// Largest noise variance kept, so that `var << 16` fits in `u64`.
 const VAR_LIMIT: u64 = 1 << 47;
 
@@ -244,12 +278,12 @@ pub struct Fusion<const G: usize> {
 /// `num / den` rounded half away from zero, saturated to `i32`; `den` > 0.
 pub(crate) fn div_round(num: i64, den: i64) -> i32 {
     let half = den / 2;
-    let q = if num >= 0 {
-        (num + half) / den
-    } else {
-        -((half - num) / den)
-    };
-    q.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+    // Branch-free: divide |num|, then restore the sign (s = 0 or −1, (q ^ s) − s = ±q).
+    let s = num >> 63;
+    let q = ((num.unsigned_abs() + half as u64) / den as u64) as i64;
+    (q ^ s)
+        .wrapping_sub(s)
+        .clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }
 
 /// Median of a non-empty sorted slice (mean of the middle two for even length, rounded as `div_round`).
@@ -273,24 +307,25 @@ fn median_sorted(v: &[i32]) -> i32 {
 /// merging them for n/2 + 1 steps gives the middle one (and the one before it, for even n).
 fn mad_sorted(v: &[i32], median: i32) -> i32 {
     let n = v.len();
+    let h = n / 2;
     let m = i64::from(median);
-    // Next deviation below: v[lo - 1]; above: v[hi].
-    let (mut lo, mut hi) = (n / 2, n / 2);
-    let (mut prev, mut cur) = (0i64, 0i64);
-    for _ in 0..=n / 2 {
-        let below = lo
-            .checked_sub(1)
+    // j-th deviation of the lower part (read downwards) and of the upper part; i64::MAX past either end.
+    let below = |j: usize| {
+        h.checked_sub(j + 1)
             .and_then(|i| v.get(i))
-            .map_or(i64::MAX, |&x| m - i64::from(x));
-        let above = v.get(hi).map_or(i64::MAX, |&x| i64::from(x) - m);
+            .map_or(i64::MAX, |&x| m - i64::from(x))
+    };
+    let above = |j: usize| v.get(h + j).map_or(i64::MAX, |&x| i64::from(x) - m);
+    let (mut lo, mut hi) = (0, 0);
+    let (mut prev, mut cur) = (0i64, 0i64);
+    for _ in 0..=h {
+        // Branch-free merge step (the comparison is unpredictable).
+        let (b, a) = (below(lo), above(hi));
+        let take_below = b <= a;
         prev = cur;
-        if below <= above {
-            cur = below;
-            lo = lo.saturating_sub(1);
-        } else {
-            cur = above;
-            hi += 1;
-        }
+        cur = b.min(a);
+        lo += usize::from(take_below);
+        hi += usize::from(!take_below);
     }
     let sat = |d: i64| d.min(i64::from(i32::MAX));
     match n % 2 {
@@ -300,66 +335,94 @@ fn mad_sorted(v: &[i32], median: i32) -> i32 {
     }
 }
 
-/// Compare-exchange of `v[i]` and `v[j]` (`i` < `j` < 16, constants after inlining).
-#[inline(always)]
-fn cmpx(v: &mut [i32; 16], i: usize, j: usize) {
-    let (a, b) = (v[i & 15], v[j & 15]);
-    v[i & 15] = a.min(b);
-    v[j & 15] = a.max(b);
-}
-
 /// Sorts 16 values with an optimal sorting network (60 compare-exchanges in 10 layers, M. W. Green; listed by
-/// B. Dobbelaere): branch-free, no data-dependent control flow.
+/// B. Dobbelaere): branch-free, no data-dependent control flow, the values in registers.
 fn sort16(v: &mut [i32; 16]) {
+    let [
+        mut v0,
+        mut v1,
+        mut v2,
+        mut v3,
+        mut v4,
+        mut v5,
+        mut v6,
+        mut v7,
+        mut v8,
+        mut v9,
+        mut v10,
+        mut v11,
+        mut v12,
+        mut v13,
+        mut v14,
+        mut v15,
+    ] = *v;
     macro_rules! layer {
-        ($(($i:literal, $j:literal)),*) => { $(cmpx(v, $i, $j);)* };
+        ($(($i:ident, $j:ident)),*) => { $((($i, $j) = ($i.min($j), $i.max($j)));)* };
     }
     layer!(
-        (0, 13),
-        (1, 12),
-        (2, 15),
-        (3, 14),
-        (4, 8),
-        (5, 6),
-        (7, 11),
-        (9, 10)
+        (v0, v13),
+        (v1, v12),
+        (v2, v15),
+        (v3, v14),
+        (v4, v8),
+        (v5, v6),
+        (v7, v11),
+        (v9, v10)
     );
     layer!(
-        (0, 5),
-        (1, 7),
-        (2, 9),
-        (3, 4),
-        (6, 13),
-        (8, 14),
-        (10, 15),
-        (11, 12)
+        (v0, v5),
+        (v1, v7),
+        (v2, v9),
+        (v3, v4),
+        (v6, v13),
+        (v8, v14),
+        (v10, v15),
+        (v11, v12)
     );
     layer!(
-        (0, 1),
-        (2, 3),
-        (4, 5),
-        (6, 8),
-        (7, 9),
-        (10, 11),
-        (12, 13),
-        (14, 15)
+        (v0, v1),
+        (v2, v3),
+        (v4, v5),
+        (v6, v8),
+        (v7, v9),
+        (v10, v11),
+        (v12, v13),
+        (v14, v15)
     );
     layer!(
-        (0, 2),
-        (1, 3),
-        (4, 10),
-        (5, 11),
-        (6, 7),
-        (8, 9),
-        (12, 14),
-        (13, 15)
+        (v0, v2),
+        (v1, v3),
+        (v4, v10),
+        (v5, v11),
+        (v6, v7),
+        (v8, v9),
+        (v12, v14),
+        (v13, v15)
     );
-    layer!((1, 2), (3, 12), (4, 6), (5, 7), (8, 10), (9, 11), (13, 14));
-    layer!((1, 4), (2, 6), (5, 8), (7, 10), (9, 13), (11, 14));
-    layer!((2, 4), (3, 6), (9, 12), (11, 13));
-    layer!((3, 5), (6, 8), (7, 9), (10, 12));
-    layer!((3, 4), (5, 6), (7, 8), (9, 10), (11, 12));
-    layer!((6, 7), (8, 9));
+    layer!(
+        (v1, v2),
+        (v3, v12),
+        (v4, v6),
+        (v5, v7),
+        (v8, v10),
+        (v9, v11),
+        (v13, v14)
+    );
+    layer!(
+        (v1, v4),
+        (v2, v6),
+        (v5, v8),
+        (v7, v10),
+        (v9, v13),
+        (v11, v14)
+    );
+    layer!((v2, v4), (v3, v6), (v9, v12), (v11, v13));
+    layer!((v3, v5), (v6, v8), (v7, v9), (v10, v12));
+    layer!((v3, v4), (v5, v6), (v7, v8), (v9, v10), (v11, v12));
+    layer!((v6, v7), (v8, v9));
+    *v = [
+        v0, v1, v2, v3, v4, v5, v6, v7, v8, v9, v10, v11, v12, v13, v14, v15,
+    ];
 }
 
 /// Sorts `v` ascending: the network for 16 values, the library sort otherwise.
@@ -410,11 +473,8 @@ impl<const G: usize> Fusion<G> {
 
     /// Running white-noise variance estimate of `group`'s `axis`, (output unit)², once settled.
     pub fn noise_var(&self, group: usize, axis: usize) -> Option<u64> {
-        let s = self.axes.get(axis)?;
-        let updates = *s.updates.get(group)?;
-        (updates >= 1 << self.config.noise_shift.min(31))
-            .then(|| s.noise_var.get(group).copied())
-            .flatten()
+        let e = self.axes.get(axis)?.est.get(group)?;
+        (e.updates >= 1 << self.config.noise_shift.min(31)).then_some(e.var)
     }
 
     /// Current weight of `group`'s `axis`, Q16 (the best sensor has 2¹⁶).
@@ -432,32 +492,30 @@ impl<const G: usize> Fusion<G> {
         let mut out = FusedSample::default();
         // Sensor-level exclusion, bitmasks over groups per kind [gyro, accel].
         let stuck_repeats = u32::from(self.config.stuck_window.max(2)) - 1;
+        let (raw_min, raw_max) = (table.raw_min, table.raw_max);
         let (mut sat, mut stuck) = ([0u32; 2], [0u32; 2]);
         for (g, (r, watch)) in raw.iter().zip(self.raw.iter_mut()).enumerate() {
             let [g0, g1, g2, g3] = r.gyro;
             let [a0, a1, a2] = r.accel;
-            let codes = [g0, g1, g2, g3, a0, a1, a2];
-            let mut group_sat = [false; 2];
-            let mut group_stuck = [false; 2];
-            for (ch, ((&code, last), repeats)) in codes
+            // Bit ch per raw channel (gyro channels first); lane 7 is padding.
+            let (mut ch_sat, mut ch_stuck) = (0u32, 0u32);
+            for (ch, ((&code, last), repeats)) in [g0, g1, g2, g3, a0, a1, a2, 0]
                 .iter()
                 .zip(watch.last.iter_mut())
                 .zip(watch.repeats.iter_mut())
                 .enumerate()
             {
-                let kind = usize::from(ch >= crate::calib::GYRO_RAW);
-                *repeats = if code == *last {
-                    repeats.saturating_add(1)
-                } else {
-                    0
-                };
+                // Branch-free: + 1 (saturating) where the code repeats, 0 where it changed.
+                *repeats =
+                    (*repeats + 1).min(u16::MAX.into()) & u32::from(code == *last).wrapping_neg();
                 *last = code;
-                group_stuck[kind] |= u32::from(*repeats) >= stuck_repeats;
-                group_sat[kind] |= table.saturated(code);
+                ch_stuck |= u32::from(*repeats >= stuck_repeats) << ch;
+                // = table.saturated(code)
+                ch_sat |= u32::from(code <= raw_min || code >= raw_max) << ch;
             }
-            for kind in 0..2 {
-                sat[kind] |= u32::from(group_sat[kind]) << g;
-                stuck[kind] |= u32::from(group_stuck[kind]) << g;
+            for (kind, channels) in [GYRO_CHANNELS, ACCEL_CHANNELS].into_iter().enumerate() {
+                sat[kind] |= u32::from(ch_sat & channels != 0) << g;
+                stuck[kind] |= u32::from(ch_stuck & channels != 0) << g;
             }
         }
         let mut excluded = [0u32; 2];
@@ -563,11 +621,16 @@ impl<const G: usize> Fusion<G> {
             } else {
                 floor
             };
-            for (g, &v) in x.iter().enumerate() {
-                let dist = (i64::from(v) - med).abs();
-                outliers |= u32::from(dist > threshold) << g;
+            if threshold < 0 {
+                outliers = candidates;
+            } else {
+                // |x − med| > t  ⇔  (x − med + t) ∉ [0, 2t]  ⇔  (x − med + t) as u64 > 2t, for t ≥ 0.
+                let (offset, span) = (threshold - med, 2 * threshold as u64);
+                for (g, &v) in x.iter().enumerate() {
+                    outliers |= u32::from((i64::from(v) + offset) as u64 > span) << g;
+                }
+                outliers &= candidates;
             }
-            outliers &= candidates;
         }
         let used = candidates & !outliers;
 
@@ -577,42 +640,24 @@ impl<const G: usize> Fusion<G> {
         let mut var_min = u64::MAX;
         let mut all_settled = true;
         let valid = state.resid_valid;
-        for (g, (((&v, var), updates), last)) in x
-            .iter()
-            .zip(state.noise_var.iter_mut())
-            .zip(state.updates.iter_mut())
-            .zip(state.last_resid.iter_mut())
-            .enumerate()
-        {
+        for (g, (e, &v)) in state.est.iter_mut().zip(x).enumerate() {
             if used >> g & 1 == 0 {
                 continue;
             }
-            let resid = (i64::from(v) - med).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
+            // = (x − median) clamped to i32
+            let resid = v.saturating_sub(median);
             if valid >> g & 1 != 0 {
-                // |d| < 2³²: the square fits in u64.
-                let d = (i64::from(resid) - i64::from(*last)).unsigned_abs();
-                let sample = (d * d / 2).min(VAR_LIMIT);
-                *var = if sample >= *var {
-                    *var + ((sample - *var) >> shift)
-                } else {
-                    *var - ((*var - sample) >> shift)
-                };
-                *updates = updates.saturating_add(1);
+                e.update(resid, shift);
             }
-            *last = resid;
-            all_settled &= *updates >= settled;
-            var_min = var_min.min((*var).max(1));
+            e.last_resid = resid;
+            all_settled &= e.updates >= settled;
+            var_min = var_min.min(e.var.max(1));
         }
         state.resid_valid = used;
         if recompute && all_settled {
-            for (g, (w, &var)) in state
-                .weight_q16
-                .iter_mut()
-                .zip(&state.noise_var)
-                .enumerate()
-            {
+            for (g, (w, e)) in state.weight_q16.iter_mut().zip(&state.est).enumerate() {
                 if candidates >> g & 1 != 0 {
-                    *w = ((var_min << 16) / var.max(1)).clamp(1, 1 << 16) as u32;
+                    *w = ((var_min << 16) / e.var.max(1)).clamp(1, 1 << 16) as u32;
                 }
             }
             self.weights_ready = true;
@@ -623,15 +668,14 @@ impl<const G: usize> Fusion<G> {
         let (mut num, mut den) = (0i64, 0i64);
         if weighted {
             for (g, (&v, &w)) in x.iter().zip(&state.weight_q16).enumerate() {
-                let w = if used >> g & 1 != 0 { i64::from(w) } else { 0 };
-                num += w * i64::from(v);
-                den += w;
+                // w ≤ 2¹⁶: w · x is an i32 × i32 product.
+                let w = (w & (used >> g & 1).wrapping_neg()) as i32;
+                num += i64::from(w) * i64::from(v);
+                den += i64::from(w);
             }
         } else {
             for (g, &v) in x.iter().enumerate() {
-                if used >> g & 1 != 0 {
-                    num += i64::from(v);
-                }
+                num += i64::from(v & (used >> g & 1).wrapping_neg() as i32);
             }
             den = i64::from(used.count_ones());
         }
