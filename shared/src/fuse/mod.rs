@@ -171,17 +171,17 @@ impl NoiseEst {
         last_resid: 0,
     };
 
-    /// Averages in `Δr²/2` for the new residual `resid` (`last_resid` valid).
-    fn update(&mut self, resid: i32, shift: u32) {
+    /// Averages in `Δr²/2` for the new residual `resid` (`last_resid` valid) with weight 2^−`shift`;
+    /// `round` = 2^`shift` − 1.
+    fn update(&mut self, resid: i32, shift: u32, round: i64) {
         // |d| < 2³²: the square fits in u64.
         let d = (i64::from(resid) - i64::from(self.last_resid)).unsigned_abs();
         let sample = (d * d / 2).min(VAR_LIMIT);
-        // var += (sample − var) / 2^shift, the quotient rounded toward zero; both terms ≤ 2⁴⁷, so the difference
-        // and the update fit in i64. Branch-free: sign s ∈ {0, −1}, |x| = (x ^ s) − s.
+        // var += (sample − var) / 2^shift, the quotient rounded toward zero (a negative dividend is biased by
+        // 2^shift − 1 before the arithmetic shift); both terms ≤ 2⁴⁷, so everything fits in i64. Branch-free.
         let diff = sample as i64 - self.var as i64;
-        let s = diff >> 63;
-        let step = (((diff ^ s) - s) as u64 >> shift) as i64;
-        self.var = (self.var as i64 + ((step ^ s) - s)) as u64;
+        let step = (diff + ((diff >> 63) & round)) >> shift;
+        self.var = (self.var as i64 + step) as u64;
         self.updates = self.updates.saturating_add(1);
     }
 }
@@ -299,40 +299,61 @@ fn median_sorted(v: &[i32]) -> i32 {
     }
 }
 
-/// Median absolute deviation from `median` of the sorted `v` (`median` = `median_sorted(v)`), rounded as
-/// [`median_sorted`], each deviation saturated to `i32::MAX`; 0 for an empty slice.
+/// Median absolute deviation from `median` of the sorted `v[..n]` (`median` = `median_sorted(&v[..n])`, n ≤ G),
+/// rounded as [`median_sorted`], each deviation saturated to `i32::MAX`; 0 for n = 0.
 ///
-/// Selection instead of a second sort: `v[..n/2]` lie at or below the median and `v[n/2..]` at or above it, so the
-/// deviations of the lower part, read downwards, and of the upper part, read upwards, are two sorted sequences;
-/// merging them for n/2 + 1 steps gives the middle one (and the one before it, for even n).
-fn mad_sorted(v: &[i32], median: i32) -> i32 {
-    let n = v.len();
-    let h = n / 2;
-    let m = i64::from(median);
-    // j-th deviation of the lower part (read downwards) and of the upper part; i64::MAX past either end.
-    let below = |j: usize| {
-        h.checked_sub(j + 1)
-            .and_then(|i| v.get(i))
-            .map_or(i64::MAX, |&x| m - i64::from(x))
+/// Selection instead of a second sort: with h = n/2, `v[..h]` lie at or below the median and `v[h..n]` at or
+/// above it, so the deviations A_j = median − v[h−1−j] and B_j = v[h+j] − median are two ascending sequences. The
+/// t = h + 1 smallest deviations are A_0..i and B_0..t−i for the smallest i with A_i ≥ B_{t−i−1} (a monotone
+/// predicate: binary search); the largest two of them are the middle one and, for even n, the one before it.
+/// Branch-free: every lookup loads from a clamped index and selects ±∞ past the ends.
+fn mad_sorted<const G: usize>(v: &[i32; G], n: usize, median: i32) -> i32 {
+    let n = n.min(G);
+    if n == 0 {
+        return 0;
+    }
+    let (h, m) = (n / 2, i64::from(median));
+    let t = h + 1;
+    let at = |i: usize| i64::from(v[i.min(G - 1)]);
+    // A_j and B_j, +∞ past their ends.
+    let a = |j: usize| {
+        if j < h {
+            m - at(h.wrapping_sub(j + 1))
+        } else {
+            i64::MAX
+        }
     };
-    let above = |j: usize| v.get(h + j).map_or(i64::MAX, |&x| i64::from(x) - m);
-    let (mut lo, mut hi) = (0, 0);
-    let (mut prev, mut cur) = (0i64, 0i64);
-    for _ in 0..=h {
-        // Branch-free merge step (the comparison is unpredictable).
-        let (b, a) = (below(lo), above(hi));
-        let take_below = b <= a;
-        prev = cur;
-        cur = b.min(a);
-        lo += usize::from(take_below);
-        hi += usize::from(!take_below);
+    let b = |j: usize| if h + j < n { at(h + j) - m } else { i64::MAX };
+    // f(j − back), −∞ for a negative index.
+    fn before(j: usize, back: usize, f: impl Fn(usize) -> i64) -> i64 {
+        if j >= back {
+            f(j.wrapping_sub(back))
+        } else {
+            i64::MIN
+        }
     }
+    let take_a = |i: usize| a(i) >= before(t, i + 1, b);
+    // Smallest i in [t − (n − h), h] (clamped at 0) with take_a(i); take_a(h) holds (A_h = +∞). The answer stays in
+    // [lo, lo + size); the number of steps depends on n only.
+    let mut lo = (t + h).saturating_sub(n);
+    let mut size = h.saturating_sub(lo) + 1;
+    while size > 1 {
+        let half = size / 2;
+        // + half unless take_a(lo + half − 1); a conditional move, not a branch (a coin toss)
+        lo += core::hint::select_unpredictable(take_a(lo + half - 1), 0, half);
+        size -= half;
+    }
+    let (last_a, last_b) = (before(lo, 1, a), before(t - lo, 1, b));
+    let cur = last_a.max(last_b);
     let sat = |d: i64| d.min(i64::from(i32::MAX));
-    match n % 2 {
-        _ if n == 0 => 0,
-        1 => sat(cur) as i32,
-        _ => div_round(sat(prev) + sat(cur), 2),
+    if n % 2 == 1 {
+        return sat(cur) as i32;
     }
+    let prev = last_a
+        .min(last_b)
+        .max(before(lo, 2, a))
+        .max(before(t - lo, 2, b));
+    div_round(sat(prev) + sat(cur), 2)
 }
 
 /// Sorts 16 values with an optimal sorting network (60 compare-exchanges in 10 layers, M. W. Green; listed by
@@ -601,8 +622,7 @@ impl<const G: usize> Fusion<G> {
             }
         });
         sort_small(&mut sorted);
-        let sorted = sorted.get(..n).unwrap_or(&[]);
-        let median = median_sorted(sorted);
+        let median = median_sorted(sorted.get(..n).unwrap_or(&[]));
         let med = i64::from(median);
 
         // Robust scale: MAD of the candidates.
@@ -611,7 +631,7 @@ impl<const G: usize> Fusion<G> {
             let scale = self
                 .scale
                 .get_mut(a)
-                .map_or(0, |s| s.update(i64::from(mad_sorted(sorted, median))));
+                .map_or(0, |s| s.update(i64::from(mad_sorted(&sorted, n, median))));
             // |x − med| > k · 1.4826 · scale  ⇔  |x − med| · 2²⁴ > k_q8 · scale · 1.4826_q16; for a limit L ≥ 0 and
             // integer distances that is |x − med| > ⌊L / 2²⁴⌋ (a negative L, possible only by wrapping, passes all).
             let limit_q24 = i64::from(self.config.outlier_sigmas_q8) * scale * MAD_TO_SIGMA_Q16;
@@ -634,27 +654,37 @@ impl<const G: usize> Fusion<G> {
         }
         let used = candidates & !outliers;
 
-        // Noise estimates and weights of the sensors used.
+        // Noise estimates of the sensors used.
         let shift = u32::from(self.config.noise_shift.min(31));
-        let settled = 1u32 << shift;
-        let mut var_min = u64::MAX;
-        let mut all_settled = true;
+        let (round, settled) = ((1i64 << shift) - 1, 1u32 << shift);
         let valid = state.resid_valid;
-        for (g, (e, &v)) in state.est.iter_mut().zip(x).enumerate() {
-            if used >> g & 1 == 0 {
-                continue;
-            }
+        // Whether every used estimate has settled matters only for weighted means.
+        let weighted_mode = self.config.mode == FusionMode::InverseVariance;
+        let mut all_settled = weighted_mode;
+        let mut rest = used;
+        while rest != 0 {
+            let g = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            let (Some(e), Some(&v)) = (state.est.get_mut(g), x.get(g)) else {
+                break;
+            };
             // = (x − median) clamped to i32
             let resid = v.saturating_sub(median);
             if valid >> g & 1 != 0 {
-                e.update(resid, shift);
+                e.update(resid, shift, round);
             }
             e.last_resid = resid;
             all_settled &= e.updates >= settled;
-            var_min = var_min.min(e.var.max(1));
         }
         state.resid_valid = used;
+        // Weights (`recompute` implies the weighted mode).
         if recompute && all_settled {
+            let var_min = state
+                .est
+                .iter()
+                .enumerate()
+                .filter(|&(g, _)| used >> g & 1 != 0)
+                .fold(u64::MAX, |m, (_, e)| m.min(e.var.max(1)));
             for (g, (w, e)) in state.weight_q16.iter_mut().zip(&state.est).enumerate() {
                 if candidates >> g & 1 != 0 {
                     *w = ((var_min << 16) / e.var.max(1)).clamp(1, 1 << 16) as u32;
@@ -664,9 +694,8 @@ impl<const G: usize> Fusion<G> {
         }
 
         // The mean over the used sensors.
-        let weighted = self.config.mode == FusionMode::InverseVariance && all_settled;
         let (mut num, mut den) = (0i64, 0i64);
-        if weighted {
+        if all_settled {
             for (g, (&v, &w)) in x.iter().zip(&state.weight_q16).enumerate() {
                 // w ≤ 2¹⁶: w · x is an i32 × i32 product.
                 let w = (w & (used >> g & 1).wrapping_neg()) as i32;
