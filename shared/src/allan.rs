@@ -18,7 +18,8 @@
 //! `Σd² < T² · 2⁶³ ≤ 2¹²⁷` for T ≤ 2³². The 128-bit sums therefore cannot overflow for 2³² samples of full-scale
 //! input (2²⁴ asked for; 82 days at 604.8 Hz); `push` refuses further samples (and says so) rather than wrap.
 //! `tests::full_scale_extremes_do_not_overflow` drives the worst case of the deepest levels and checks against an
-//! independent i128 computation.
+//! independent i128 computation. Since `LEVELS` ≤ 31, |d| ≤ 2⁶² fits in `i64`, and d² is one widening
+//! 64 × 64 → 128-bit multiply (from 32-bit halves on 32-bit targets, one product while |d| < 2³²).
 
 use serde::{Deserialize, Serialize};
 
@@ -26,6 +27,8 @@ use serde::{Deserialize, Serialize};
 pub const LEVELS: usize = 24;
 /// Samples an accumulator takes before it refuses more (the overflow bound above).
 pub const MAX_SAMPLES: u64 = 1 << 32;
+/// Differences of block sums, |d| ≤ 2^(32+k), are formed in `i64`: that needs k ≤ 30.
+const DIFF_FITS_I64: () = assert!(LEVELS <= 31);
 
 /// One octave level's statistics: what the telemetry carries; roots are taken on the ground.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -64,19 +67,82 @@ impl Sum128 {
         (u128::from(self.hi) << 64) | u128::from(self.lo)
     }
 
-    fn add(&mut self, x: u128) {
-        let s = self.get().wrapping_add(x); // cannot wrap: see the module proof
+    /// Adds `d²` (cannot wrap: see the module proof).
+    fn add_square(&mut self, d: i64) {
+        let (lo, hi) = square_wide(d.unsigned_abs());
+        let s = self
+            .get()
+            .wrapping_add((u128::from(hi) << 64) | u128::from(lo));
         self.lo = s as u64;
         self.hi = (s >> 64) as u64;
     }
+}
+
+/// `a²` as (low, high) 64-bit halves: one widening multiply on 64-bit targets.
+#[cfg(target_pointer_width = "64")]
+fn square_wide(a: u64) -> (u64, u64) {
+    let p = u128::from(a) * u128::from(a);
+    (p as u64, (p >> 64) as u64)
+}
+
+/// `a²` as (low, high) 64-bit halves, from 32 × 32 → 64-bit products (`UMULL` on the Cortex-M4; a `u128`
+/// multiply would call `__multi3`). One product when `a` < 2³², the usual case; three otherwise.
+#[cfg(any(test, not(target_pointer_width = "64")))]
+fn square_wide_halves(a: u64) -> (u64, u64) {
+    let (hi, lo) = (a >> 32, a & 0xFFFF_FFFF);
+    if hi == 0 {
+        return (lo * lo, 0);
+    }
+    // a² = hi²·2⁶⁴ + 2·hi·lo·2³² + lo²; 2·hi·lo·2³² = mid·2³³ spans both halves.
+    let mid = hi * lo;
+    let (low, carry) = (lo * lo).overflowing_add(mid << 33);
+    (low, hi * hi + (mid >> 31) + u64::from(carry))
+}
+
+#[cfg(not(target_pointer_width = "64"))]
+use square_wide_halves as square_wide;
+
+/// What sample number `index` does: it completes block `index >> k` of level k for k = 0, 1, … while that
+/// block index is odd, and for the first level where it is even (or the last level). Each completed block
+/// but the first of its level has a predecessor to be differenced with.
+#[derive(Clone, Copy, Debug)]
+struct Step {
+    /// Levels with a completed block: 1 ..= `LEVELS`.
+    depth: usize,
+    /// The block of the last of those levels has a predecessor (the others have: their block index is odd).
+    last_has_prev: bool,
+}
+
+impl Step {
+    fn new(index: u64) -> Self {
+        let depth = ((index.trailing_ones() + 1) as usize).min(LEVELS);
+        Self {
+            depth,
+            last_has_prev: index >> (depth - 1) > 0,
+        }
+    }
+}
+
+/// State of one octave level: the previous block sum and the sum of squared differences, side by side so that
+/// the low levels, touched by most samples, share cache lines.
+#[derive(Clone, Copy, Debug, Default)]
+struct Level {
+    prev: i64,
+    sum_sq: Sum128,
+}
+
+impl Level {
+    const ZERO: Self = Self {
+        prev: 0,
+        sum_sq: Sum128::ZERO,
+    };
 }
 
 /// Streaming non-overlapping octave Allan accumulator of one channel (see module docs).
 #[derive(Clone, Debug)]
 pub struct AllanAccumulator {
     samples: u64,
-    prev: [i64; LEVELS],
-    sum_sq: [Sum128; LEVELS],
+    levels: [Level; LEVELS],
 }
 
 impl Default for AllanAccumulator {
@@ -90,8 +156,7 @@ impl AllanAccumulator {
     pub const fn new() -> Self {
         Self {
             samples: 0,
-            prev: [0; LEVELS],
-            sum_sq: [Sum128::ZERO; LEVELS],
+            levels: [Level::ZERO; LEVELS],
         }
     }
 
@@ -110,29 +175,57 @@ impl AllanAccumulator {
         if self.samples >= MAX_SAMPLES {
             return false;
         }
-        let index = self.samples;
+        let step = Step::new(self.samples);
         self.samples += 1;
-        let mut block = i64::from(x);
-        for (k, (prev, sum_sq)) in self.prev.iter_mut().zip(self.sum_sq.iter_mut()).enumerate() {
-            // This sample completes block number `index >> k` of level k.
-            let block_index = index >> k;
-            if block_index > 0 {
-                let d = i128::from(block) - i128::from(*prev);
-                sum_sq.add(d.unsigned_abs() * d.unsigned_abs());
-            }
-            let earlier = core::mem::replace(prev, block);
-            if block_index & 1 == 0 {
-                break;
-            }
-            // Odd block: it and its predecessor form the next level's block.
-            block += earlier;
-        }
+        self.push_levels(x, step);
         true
+    }
+
+    /// Adds a sample whose [`Step`] is `step` (`samples` is already counted).
+    #[inline(always)]
+    fn push_levels(&mut self, x: i32, step: Step) {
+        let () = DIFF_FITS_I64;
+        let Some((last, odd)) = self
+            .levels
+            .get_mut(..step.depth)
+            .and_then(<[Level]>::split_last_mut)
+        else {
+            return;
+        };
+        let mut block = i64::from(x);
+        for level in odd {
+            // |block|, |prev| ≤ 2^(31+k): |d| ≤ 2^(32+k) < 2⁶³ (`DIFF_FITS_I64`).
+            level.sum_sq.add_square(block - level.prev);
+            // An odd block and its predecessor form the next level's block.
+            block += core::mem::replace(&mut level.prev, block);
+        }
+        if step.last_has_prev {
+            last.sum_sq.add_square(block - last.prev);
+        }
+        last.prev = block;
+    }
+
+    /// [`Self::push`] of `xs[c]` into `accs[c]` for every channel c (extra items of either are left alone);
+    /// the per-sample bookkeeping is shared when all accumulators hold the same number of samples, as the
+    /// pipeline's do.
+    pub fn push_each(accs: &mut [Self], xs: &[i32]) {
+        let Some(index) = accs.first().map(Self::samples) else {
+            return;
+        };
+        let step = Step::new(index);
+        for (acc, &x) in accs.iter_mut().zip(xs) {
+            if acc.samples == index && index < MAX_SAMPLES {
+                acc.samples = index + 1;
+                acc.push_levels(x, step);
+            } else {
+                acc.push(x);
+            }
+        }
     }
 
     /// Statistics of level `k` (`None` for k ≥ [`LEVELS`]).
     pub fn level(&self, k: usize) -> Option<AllanLevel> {
-        let sum_sq = self.sum_sq.get(k)?.get();
+        let sum_sq = self.levels.get(k)?.sum_sq.get();
         let blocks = self.samples >> k;
         Some(AllanLevel {
             level: k as u8,
@@ -239,6 +332,57 @@ mod tests {
         assert!(acc.push(7));
         assert!(!acc.push(7));
         assert_eq!(acc.samples(), MAX_SAMPLES);
+    }
+
+    #[test]
+    fn push_each_equals_push() {
+        let mut s = 7u64;
+        let mut next = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 32) as i32
+        };
+        let mut each: Vec<AllanAccumulator> = (0..5).map(|_| AllanAccumulator::new()).collect();
+        let mut one = each.clone();
+        // Unequal sample counts, and one accumulator at its limit.
+        for acc in [&mut each, &mut one] {
+            acc[2].push(1);
+            acc[4].samples = MAX_SAMPLES - 3;
+        }
+        for _ in 0..3000 {
+            let xs: Vec<i32> = (0..5).map(|_| next()).collect();
+            AllanAccumulator::push_each(&mut each, &xs);
+            for (a, &x) in one.iter_mut().zip(&xs) {
+                a.push(x);
+            }
+        }
+        for (a, b) in each.iter().zip(&one) {
+            assert_eq!(a.samples(), b.samples());
+            assert!((0..LEVELS).all(|k| a.level(k) == b.level(k)));
+        }
+        assert_eq!(each[4].samples(), MAX_SAMPLES);
+    }
+
+    #[test]
+    fn wide_squares_are_exact() {
+        let mut s = 99u64;
+        let mut values: Vec<u64> = (0..64)
+            .flat_map(|b| [1u64 << b, (1u64 << b) - 1, (1u64 << b) + 1])
+            .collect();
+        values.extend((0..100_000).map(|i| {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            s >> (i % 64)
+        }));
+        values.extend([0, u64::from(u32::MAX), u64::MAX]);
+        for a in values {
+            let want = u128::from(a) * u128::from(a);
+            let split = |(lo, hi): (u64, u64)| (u128::from(hi) << 64) | u128::from(lo);
+            assert_eq!(split(square_wide_halves(a)), want, "{a}");
+            assert_eq!(split(square_wide(a)), want, "{a}");
+        }
     }
 
     #[test]

@@ -3,7 +3,10 @@
 //! Parameters (Rocksoft model): poly `0x1EDC6F41` (reflected `0x82F63B78`), init `0xFFFFFFFF`, refin/refout true,
 //! xorout `0xFFFFFFFF`, check (`"123456789"`) `0xE3069283`. libcsp's `csp_crc32` is this CRC.
 //!
-//! Table-driven, one byte per step; the 1 KiB table is built at compile time.
+//! Table-driven, one byte per step; the 1 KiB table is built at compile time. On 64-bit targets (the host tools)
+//! eight bytes per step ("slicing-by-8", Intel's method): seven more tables, 8 KiB in all, which cut the serial
+//! dependency chain to one step per 8 bytes. The flight target (32-bit) keeps the single 1 KiB table: its CRC
+//! work, ~240 bytes per frame at 604.8 frames/s, is well under 1 % of the CPU, not worth 7 KiB of flash.
 
 const POLY_REFLECTED: u32 = 0x82F6_3B78;
 
@@ -27,6 +30,55 @@ const TABLE: [u32; 256] = {
     table
 };
 
+/// `SLICES[k][b]`: the CRC contribution of byte b followed by k zero bytes (`SLICES[0]` = `TABLE`).
+#[cfg(target_pointer_width = "64")]
+const SLICES: [[u32; 256]; 8] = {
+    let mut t = [[0u32; 256]; 8];
+    t[0] = TABLE;
+    let mut k = 1;
+    while k < 8 {
+        let mut i = 0;
+        while i < 256 {
+            let prev = t[k - 1][i];
+            t[k][i] = (prev >> 8) ^ TABLE[(prev & 0xFF) as usize];
+            i += 1;
+        }
+        k += 1;
+    }
+    t
+};
+
+/// One byte per step.
+fn update_bytewise(mut crc: u32, bytes: &[u8]) -> u32 {
+    for &b in bytes {
+        // `(crc ^ b) as u8` is < 256: the index cannot fail.
+        crc = (crc >> 8) ^ TABLE[usize::from((crc as u8) ^ b)];
+    }
+    crc
+}
+
+/// Eight bytes per step, then the rest one by one.
+#[cfg(target_pointer_width = "64")]
+fn update_sliced(mut crc: u32, bytes: &[u8]) -> u32 {
+    let mut words = bytes.chunks_exact(8);
+    for w in &mut words {
+        let Ok(w) = <[u8; 8]>::try_from(w) else {
+            continue;
+        };
+        let x = u64::from_le_bytes(w) ^ u64::from(crc);
+        // Byte j of the word is followed by 7 − j more bytes of this step. Indices are masked to 8 bits.
+        let t = |k: usize, shift: u32| SLICES[k][((x >> shift) & 0xFF) as usize];
+        crc = t(7, 0) ^ t(6, 8) ^ t(5, 16) ^ t(4, 24) ^ t(3, 32) ^ t(2, 40) ^ t(1, 48) ^ t(0, 56);
+    }
+    update_bytewise(crc, words.remainder())
+}
+
+#[cfg(target_pointer_width = "64")]
+use update_sliced as update_crc;
+
+#[cfg(not(target_pointer_width = "64"))]
+use update_bytewise as update_crc;
+
 /// Incremental CRC-32C over several slices.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Crc32c {
@@ -47,12 +99,7 @@ impl Crc32c {
 
     /// Feeds `bytes`.
     pub fn update(&mut self, bytes: &[u8]) {
-        let mut crc = self.state;
-        for &b in bytes {
-            // `(crc ^ b) as u8` is < 256: the index cannot fail.
-            crc = (crc >> 8) ^ TABLE[usize::from((crc as u8) ^ b)];
-        }
-        self.state = crc;
+        self.state = update_crc(self.state, bytes);
     }
 
     /// The CRC of everything fed so far.
@@ -86,6 +133,20 @@ mod tests {
         assert_eq!(crc32c(&[0xFFu8; 32]), 0x62A8_AB43);
         let asc: [u8; 32] = core::array::from_fn(|i| i as u8);
         assert_eq!(crc32c(&asc), 0x46DD_794E);
+    }
+
+    #[test]
+    fn sliced_equals_bytewise() {
+        let data: [u8; 300] = core::array::from_fn(|i| (i * i * 31 + i * 7 + 3) as u8);
+        for start in 0..17 {
+            for end in (start..=data.len()).step_by(7).chain([data.len()]) {
+                let part = &data[start..end];
+                assert_eq!(
+                    update_crc(0x1234_5678, part),
+                    update_bytewise(0x1234_5678, part)
+                );
+            }
+        }
     }
 
     #[test]

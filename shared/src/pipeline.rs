@@ -453,30 +453,20 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         for ((out, r), cal) in axes.iter_mut().zip(&raw).zip(&self.cal.groups) {
             *out = cal.apply(r);
         }
-        let bank = &mut self.allan.borrow_mut().0;
-        for (acc, &x) in bank.iter_mut().zip(axes.as_flattened()) {
-            acc.push(x);
-        }
         let fused = self.fusion.fuse(&raw, &axes, &self.cal);
         if !fused.valid() {
             self.invalid_frames = self.invalid_frames.wrapping_add(1);
         }
-        let fused_allan = self
-            .allan
-            .borrow_mut()
-            .0
-            .get_mut(FUSED_CHANNEL0..)
-            .unwrap_or(&mut []);
-        for (((acc, hold), &x), &used) in fused_allan
-            .iter_mut()
-            .zip(&mut self.fused_hold)
-            .zip(&fused.axes)
-            .zip(&fused.used)
-        {
+        for ((hold, &x), &used) in self.fused_hold.iter_mut().zip(&fused.axes).zip(&fused.used) {
             if used > 0 {
                 *hold = x;
             }
-            acc.push(*hold);
+        }
+        // Allan channels: the sensors' axes, then the fused axes (holding the last valid value).
+        let bank = &mut self.allan.borrow_mut().0;
+        if let Some((sensors, fused_channels)) = bank.split_at_mut_checked(FUSED_CHANNEL0) {
+            AllanAccumulator::push_each(sensors, axes.as_flattened());
+            AllanAccumulator::push_each(fused_channels, &self.fused_hold);
         }
 
         self.avg.add(&fused, f.temp_cdeg, t_us);
@@ -589,5 +579,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 /// The largest chunk of a calibration upload (re-exported for the ground's uploader).
 pub const CAL_CHUNK: usize = CAL_CHUNK_MAX;
 
+#[cfg(test)]
+mod golden;
 #[cfg(test)]
 mod tests;

@@ -78,25 +78,24 @@ pub struct GroupCal {
 
 /// Rounds `acc / 2^shift` to the nearest integer, halves away from zero, saturating to `i32`.
 fn round_shift_sat(acc: i64, shift: u32) -> i32 {
-    let half = 1i64 << (shift - 1);
-    let q = if acc >= 0 {
-        (acc + half) >> shift
-    } else {
-        -((half - acc) >> shift)
-    };
-    q.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+    let half = 1u64 << (shift - 1);
+    // Branch-free (the sign of a sensor output at rest is a coin toss): round |acc|, then restore the sign
+    // (s = 0 or −1, (q ^ s) − s = ±q).
+    let s = acc >> 63;
+    let q = ((acc.unsigned_abs() + half) >> shift) as i64;
+    ((q ^ s) - s).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }
 
 fn affine<const N: usize>(m: &[[i32; N]; 3], b: &[i32; N], raw: &[i32; N]) -> [i32; 3] {
-    let limit = 1i64 << 29;
-    let d: [i64; N] = core::array::from_fn(|j| {
-        ((i64::from(raw[j]) << FRAC_BITS) - i64::from(b[j])).clamp(-limit, limit)
+    const LIMIT: i64 = 1 << 29;
+    // |d| ≤ 2²⁹ fits in i32, so that every product is one 32 × 32 → 64-bit multiply (SMLAL on the Cortex-M4).
+    let d: [i32; N] = core::array::from_fn(|j| {
+        ((i64::from(raw[j]) << FRAC_BITS) - i64::from(b[j])).clamp(-LIMIT, LIMIT) as i32
     });
     m.map(|row| {
-        let acc = row
-            .iter()
-            .zip(&d)
-            .fold(0i64, |acc, (&mij, &dj)| acc + i64::from(mij) * dj);
+        let acc = row.iter().zip(&d).fold(0i64, |acc, (&mij, &dj)| {
+            acc + i64::from(mij) * i64::from(dj)
+        });
         round_shift_sat(acc, 2 * FRAC_BITS)
     })
 }

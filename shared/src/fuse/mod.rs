@@ -153,37 +153,71 @@ pub struct FaultCounts {
     pub outlier: u32,
 }
 
+/// Noise estimator of one sensor axis.
 #[derive(Clone, Copy, Debug)]
-struct AxisState {
+struct NoiseEst {
     /// EWMA of Δr²/2, (output unit)².
-    noise_var: u64,
-    /// Noise estimate updates, saturating.
+    var: u64,
+    /// Updates, saturating.
     updates: u32,
+    /// Residual from the median in the last sample that used the sensor.
     last_resid: i32,
-    resid_valid: bool,
-    weight_q16: u32,
 }
 
-impl AxisState {
+impl NoiseEst {
     const NEW: Self = Self {
-        noise_var: 0,
+        var: 0,
         updates: 0,
         last_resid: 0,
-        resid_valid: false,
-        weight_q16: 1 << 16,
+    };
+
+    /// Averages in `Δr²/2` for the new residual `resid` (`last_resid` valid) with weight 2^−`shift`;
+    /// `round` = 2^`shift` − 1.
+    fn update(&mut self, resid: i32, shift: u32, round: i64) {
+        // |d| < 2³²: the square fits in u64.
+        let d = (i64::from(resid) - i64::from(self.last_resid)).unsigned_abs();
+        let sample = (d * d / 2).min(VAR_LIMIT);
+        // var += (sample − var) / 2^shift, the quotient rounded toward zero (a negative dividend is biased by
+        // 2^shift − 1 before the arithmetic shift); both terms ≤ 2⁴⁷, so everything fits in i64. Branch-free.
+        let diff = sample as i64 - self.var as i64;
+        let step = (diff + ((diff >> 63) & round)) >> shift;
+        self.var = (self.var as i64 + step) as u64;
+        self.updates = self.updates.saturating_add(1);
+    }
+}
+
+/// Noise-estimator state of one axis of all `G` groups, with bitmasks over groups (bit g = group g).
+#[derive(Clone, Copy, Debug)]
+struct AxisState<const G: usize> {
+    /// Per group.
+    est: [NoiseEst; G],
+    /// Groups whose `last_resid` is from the previous sample.
+    resid_valid: u32,
+    /// Weights, Q16.
+    weight_q16: [u32; G],
+}
+
+impl<const G: usize> AxisState<G> {
+    const NEW: Self = Self {
+        est: [NoiseEst::NEW; G],
+        resid_valid: 0,
+        weight_q16: [1 << 16; G],
     };
 }
 
+/// Raw-channel watch of one group: the last code of each channel and how often it repeated since it changed
+/// (saturating at `u16::MAX`). Eight lanes for the seven channels, so that the update is two 4-lane vector
+/// operations where the target has them; lane 7 is padding, never reported.
 #[derive(Clone, Copy, Debug)]
 struct RawWatch {
-    last: i32,
-    repeats: u16,
+    last: [i32; RAW_LANES],
+    repeats: [u32; RAW_LANES],
 }
 
 impl RawWatch {
     const NEW: Self = Self {
-        last: i32::MIN,
-        repeats: 0,
+        last: [i32::MIN; RAW_LANES],
+        repeats: [0; RAW_LANES],
     };
 }
 
@@ -219,6 +253,12 @@ impl AxisScale {
 }
 
 const RAW_CHANNELS: usize = crate::calib::GYRO_RAW + crate::calib::ACCEL_RAW;
+/// Lanes of a [`RawWatch`]: the raw channels and padding.
+const RAW_LANES: usize = 8;
+/// Raw channels of the gyros, as bits over channels.
+const GYRO_CHANNELS: u32 = (1 << crate::calib::GYRO_RAW) - 1;
+/// Raw channels of the accelerometer.
+const ACCEL_CHANNELS: u32 = ((1 << RAW_CHANNELS) - 1) & !GYRO_CHANNELS;
 /// Largest noise variance kept, so that `var << 16` fits in `u64`.
 const VAR_LIMIT: u64 = 1 << 47;
 
@@ -226,9 +266,9 @@ const VAR_LIMIT: u64 = 1 << 47;
 #[derive(Clone, Debug)]
 pub struct Fusion<const G: usize> {
     config: FusionConfig,
-    axes: [[AxisState; AXES]; G],
+    axes: [AxisState<G>; AXES],
     scale: [AxisScale; AXES],
-    raw: [[RawWatch; RAW_CHANNELS]; G],
+    raw: [RawWatch; G],
     /// `[group][0 = gyro, 1 = accel]`.
     faults: [[FaultCounts; 2]; G],
     samples: u32,
@@ -238,12 +278,12 @@ pub struct Fusion<const G: usize> {
 /// `num / den` rounded half away from zero, saturated to `i32`; `den` > 0.
 pub(crate) fn div_round(num: i64, den: i64) -> i32 {
     let half = den / 2;
-    let q = if num >= 0 {
-        (num + half) / den
-    } else {
-        -((half - num) / den)
-    };
-    q.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+    // Branch-free: divide |num|, then restore the sign (s = 0 or −1, (q ^ s) − s = ±q).
+    let s = num >> 63;
+    let q = ((num.unsigned_abs() + half as u64) / den as u64) as i64;
+    (q ^ s)
+        .wrapping_sub(s)
+        .clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }
 
 /// Median of a non-empty sorted slice (mean of the middle two for even length, rounded as `div_round`).
@@ -259,17 +299,174 @@ fn median_sorted(v: &[i32]) -> i32 {
     }
 }
 
+/// Median absolute deviation from `median` of the sorted `v[..n]` (`median` = `median_sorted(&v[..n])`, n ≤ G),
+/// rounded as [`median_sorted`], each deviation saturated to `i32::MAX`; 0 for n = 0.
+///
+/// Selection instead of a second sort: with h = n/2, `v[..h]` lie at or below the median and `v[h..n]` at or
+/// above it, so the deviations A_j = median − v[h−1−j] and B_j = v[h+j] − median are two ascending sequences. The
+/// t = h + 1 smallest deviations are A_0..i and B_0..t−i for the smallest i with A_i ≥ B_{t−i−1} (a monotone
+/// predicate: binary search); the largest two of them are the middle one and, for even n, the one before it.
+/// Branch-free: every lookup loads from a clamped index and selects ±∞ past the ends.
+fn mad_sorted<const G: usize>(v: &[i32; G], n: usize, median: i32) -> i32 {
+    let n = n.min(G);
+    if n == 0 {
+        return 0;
+    }
+    let (h, m) = (n / 2, i64::from(median));
+    let t = h + 1;
+    let at = |i: usize| i64::from(v[i.min(G - 1)]);
+    // A_j and B_j, +∞ past their ends.
+    let a = |j: usize| {
+        if j < h {
+            m - at(h.wrapping_sub(j + 1))
+        } else {
+            i64::MAX
+        }
+    };
+    let b = |j: usize| if h + j < n { at(h + j) - m } else { i64::MAX };
+    // f(j − back), −∞ for a negative index.
+    fn before(j: usize, back: usize, f: impl Fn(usize) -> i64) -> i64 {
+        if j >= back {
+            f(j.wrapping_sub(back))
+        } else {
+            i64::MIN
+        }
+    }
+    let take_a = |i: usize| a(i) >= before(t, i + 1, b);
+    // Smallest i in [t − (n − h), h] (clamped at 0) with take_a(i); take_a(h) holds (A_h = +∞). The answer stays in
+    // [lo, lo + size); the number of steps depends on n only.
+    let mut lo = (t + h).saturating_sub(n);
+    let mut size = h.saturating_sub(lo) + 1;
+    while size > 1 {
+        let half = size / 2;
+        // + half unless take_a(lo + half − 1); a conditional move, not a branch (a coin toss)
+        lo += core::hint::select_unpredictable(take_a(lo + half - 1), 0, half);
+        size -= half;
+    }
+    let (last_a, last_b) = (before(lo, 1, a), before(t - lo, 1, b));
+    let cur = last_a.max(last_b);
+    let sat = |d: i64| d.min(i64::from(i32::MAX));
+    if n % 2 == 1 {
+        return sat(cur) as i32;
+    }
+    let prev = last_a
+        .min(last_b)
+        .max(before(lo, 2, a))
+        .max(before(t - lo, 2, b));
+    div_round(sat(prev) + sat(cur), 2)
+}
+
+/// Sorts 16 values with an optimal sorting network (60 compare-exchanges in 10 layers, M. W. Green; listed by
+/// B. Dobbelaere): branch-free, no data-dependent control flow, the values in registers.
+fn sort16(v: &mut [i32; 16]) {
+    let [
+        mut v0,
+        mut v1,
+        mut v2,
+        mut v3,
+        mut v4,
+        mut v5,
+        mut v6,
+        mut v7,
+        mut v8,
+        mut v9,
+        mut v10,
+        mut v11,
+        mut v12,
+        mut v13,
+        mut v14,
+        mut v15,
+    ] = *v;
+    macro_rules! layer {
+        ($(($i:ident, $j:ident)),*) => { $((($i, $j) = ($i.min($j), $i.max($j)));)* };
+    }
+    layer!(
+        (v0, v13),
+        (v1, v12),
+        (v2, v15),
+        (v3, v14),
+        (v4, v8),
+        (v5, v6),
+        (v7, v11),
+        (v9, v10)
+    );
+    layer!(
+        (v0, v5),
+        (v1, v7),
+        (v2, v9),
+        (v3, v4),
+        (v6, v13),
+        (v8, v14),
+        (v10, v15),
+        (v11, v12)
+    );
+    layer!(
+        (v0, v1),
+        (v2, v3),
+        (v4, v5),
+        (v6, v8),
+        (v7, v9),
+        (v10, v11),
+        (v12, v13),
+        (v14, v15)
+    );
+    layer!(
+        (v0, v2),
+        (v1, v3),
+        (v4, v10),
+        (v5, v11),
+        (v6, v7),
+        (v8, v9),
+        (v12, v14),
+        (v13, v15)
+    );
+    layer!(
+        (v1, v2),
+        (v3, v12),
+        (v4, v6),
+        (v5, v7),
+        (v8, v10),
+        (v9, v11),
+        (v13, v14)
+    );
+    layer!(
+        (v1, v4),
+        (v2, v6),
+        (v5, v8),
+        (v7, v10),
+        (v9, v13),
+        (v11, v14)
+    );
+    layer!((v2, v4), (v3, v6), (v9, v12), (v11, v13));
+    layer!((v3, v5), (v6, v8), (v7, v9), (v10, v12));
+    layer!((v3, v4), (v5, v6), (v7, v8), (v9, v10), (v11, v12));
+    layer!((v6, v7), (v8, v9));
+    *v = [
+        v0, v1, v2, v3, v4, v5, v6, v7, v8, v9, v10, v11, v12, v13, v14, v15,
+    ];
+}
+
+/// Sorts `v` ascending: the network for 16 values, the library sort otherwise.
+fn sort_small<const G: usize>(v: &mut [i32; G]) {
+    match <&mut [i32; 16]>::try_from(v.as_mut_slice()) {
+        Ok(v16) => sort16(v16),
+        Err(_) => v.sort_unstable(),
+    }
+}
+
 impl<const G: usize> Fusion<G> {
     const FITS: () = assert!(G >= 1 && G <= MAX_GROUPS, "1 ≤ G ≤ 32");
+    /// Bit g set for every group.
+    const ALL: u32 = u32::MAX >> (32 - G);
 
     /// A fusion with no history.
     pub const fn new(config: FusionConfig) -> Self {
         let () = Self::FITS;
         Self {
             config,
-            axes: [[AxisState::NEW; AXES]; G],
+            axes: [AxisState::NEW; AXES],
             scale: [AxisScale::NEW; AXES],
-            raw: [[RawWatch::NEW; RAW_CHANNELS]; G],
+            raw: [RawWatch::NEW; G],
             faults: [[FaultCounts {
                 saturated: 0,
                 stuck: 0,
@@ -297,13 +494,13 @@ impl<const G: usize> Fusion<G> {
 
     /// Running white-noise variance estimate of `group`'s `axis`, (output unit)², once settled.
     pub fn noise_var(&self, group: usize, axis: usize) -> Option<u64> {
-        let s = self.axes.get(group)?.get(axis)?;
-        (s.updates >= 1 << self.config.noise_shift.min(31)).then_some(s.noise_var)
+        let e = self.axes.get(axis)?.est.get(group)?;
+        (e.updates >= 1 << self.config.noise_shift.min(31)).then_some(e.var)
     }
 
     /// Current weight of `group`'s `axis`, Q16 (the best sensor has 2¹⁶).
     pub fn weight_q16(&self, group: usize, axis: usize) -> Option<u32> {
-        Some(self.axes.get(group)?.get(axis)?.weight_q16)
+        self.axes.get(axis)?.weight_q16.get(group).copied()
     }
 
     /// Fuses one sample: `raw` as read (for rails and stuck channels), `axes` the groups' calibrated outputs.
@@ -314,45 +511,43 @@ impl<const G: usize> Fusion<G> {
         table: &CalibrationTable<G>,
     ) -> FusedSample {
         let mut out = FusedSample::default();
-        // Sensor-level exclusion: [gyro, accel] per group.
-        let mut excluded = [[false; 2]; G];
-        for (g, ((r, watch), ex)) in raw
-            .iter()
-            .zip(self.raw.iter_mut())
-            .zip(excluded.iter_mut())
-            .enumerate()
-        {
-            let bit = 1u32 << g;
-            let channels = r.gyro.iter().chain(&r.accel);
-            let mut stuck = [false; 2];
-            let mut sat = [false; 2];
-            for (ch, (&code, w)) in channels.zip(watch.iter_mut()).enumerate() {
-                let kind = usize::from(ch >= crate::calib::GYRO_RAW);
-                if code == w.last {
-                    w.repeats = w.repeats.saturating_add(1);
-                } else {
-                    *w = RawWatch {
-                        last: code,
-                        repeats: 0,
-                    };
-                }
-                stuck[kind] |=
-                    u32::from(w.repeats) + 1 >= u32::from(self.config.stuck_window.max(2));
-                sat[kind] |= table.saturated(code);
+        // Sensor-level exclusion, bitmasks over groups per kind [gyro, accel].
+        let stuck_repeats = u32::from(self.config.stuck_window.max(2)) - 1;
+        let (raw_min, raw_max) = (table.raw_min, table.raw_max);
+        let (mut sat, mut stuck) = ([0u32; 2], [0u32; 2]);
+        for (g, (r, watch)) in raw.iter().zip(self.raw.iter_mut()).enumerate() {
+            let [g0, g1, g2, g3] = r.gyro;
+            let [a0, a1, a2] = r.accel;
+            // Bit ch per raw channel (gyro channels first); lane 7 is padding.
+            let (mut ch_sat, mut ch_stuck) = (0u32, 0u32);
+            for (ch, ((&code, last), repeats)) in [g0, g1, g2, g3, a0, a1, a2, 0]
+                .iter()
+                .zip(watch.last.iter_mut())
+                .zip(watch.repeats.iter_mut())
+                .enumerate()
+            {
+                // Branch-free: + 1 (saturating) where the code repeats, 0 where it changed.
+                *repeats =
+                    (*repeats + 1).min(u16::MAX.into()) & u32::from(code == *last).wrapping_neg();
+                *last = code;
+                ch_stuck |= u32::from(*repeats >= stuck_repeats) << ch;
+                // = table.saturated(code)
+                ch_sat |= u32::from(code <= raw_min || code >= raw_max) << ch;
             }
-            if !self.config.robust {
-                continue;
+            for (kind, channels) in [GYRO_CHANNELS, ACCEL_CHANNELS].into_iter().enumerate() {
+                sat[kind] |= u32::from(ch_sat & channels != 0) << g;
+                stuck[kind] |= u32::from(ch_stuck & channels != 0) << g;
             }
+        }
+        let mut excluded = [0u32; 2];
+        if self.config.robust {
             for (kind, faults) in [&mut out.health.gyro, &mut out.health.accel]
                 .into_iter()
                 .enumerate()
             {
-                if sat[kind] {
-                    faults.saturated |= bit;
-                } else if stuck[kind] {
-                    faults.stuck |= bit;
-                }
-                ex[kind] = sat[kind] || stuck[kind];
+                faults.saturated = sat[kind];
+                faults.stuck = stuck[kind] & !sat[kind];
+                excluded[kind] = sat[kind] | stuck[kind];
             }
         }
 
@@ -362,160 +557,161 @@ impl<const G: usize> Fusion<G> {
                     .samples
                     .is_multiple_of(u32::from(self.config.weight_interval.max(1))));
         let mut outlier = [0u32; 2];
-        for (a, (value, used)) in out.axes.iter_mut().zip(out.used.iter_mut()).enumerate() {
+        for (a, ((value, used), used_mask)) in out
+            .axes
+            .iter_mut()
+            .zip(out.used.iter_mut())
+            .zip(out.used_mask.iter_mut())
+            .enumerate()
+        {
             let kind = usize::from(a >= 3);
-            let (n, fused, out_mask, used_mask) =
-                self.fuse_axis(a, axes, &excluded, kind, recompute);
-            *value = fused;
-            *used = n;
+            let column: [i32; G] = core::array::from_fn(|g| axes[g][a]);
+            let (n, fused, out_mask, mask) =
+                self.fuse_axis(a, &column, Self::ALL & !excluded[kind], kind, recompute);
+            (*value, *used, *used_mask) = (fused, n, mask);
             outlier[kind] |= out_mask;
-            if let Some(m) = out.used_mask.get_mut(a) {
-                *m = used_mask;
-            }
         }
         out.health.gyro.outlier = outlier[0];
         out.health.accel.outlier = outlier[1];
 
-        for (g, counts) in self.faults.iter_mut().enumerate() {
-            let bit = 1u32 << g;
-            for (c, h) in counts.iter_mut().zip([&out.health.gyro, &out.health.accel]) {
-                let bump = |x: &mut u32, mask: u32| *x = x.wrapping_add(u32::from(mask & bit != 0));
-                bump(&mut c.saturated, h.saturated);
-                bump(&mut c.stuck, h.stuck);
-                bump(&mut c.outlier, h.outlier);
+        for (kind, h) in [out.health.gyro, out.health.accel].iter().enumerate() {
+            let mut any = h.any();
+            while any != 0 {
+                let g = any.trailing_zeros();
+                any &= any - 1;
+                if let Some(c) = self
+                    .faults
+                    .get_mut(g as usize)
+                    .and_then(|c| c.get_mut(kind))
+                {
+                    let bump = |x: &mut u32, mask: u32| *x = x.wrapping_add((mask >> g) & 1);
+                    bump(&mut c.saturated, h.saturated);
+                    bump(&mut c.stuck, h.stuck);
+                    bump(&mut c.outlier, h.outlier);
+                }
             }
         }
         self.samples = self.samples.wrapping_add(1);
         out
     }
 
-    /// One axis: returns (sensors used, fused value, outlier mask, used mask).
+    /// One axis: `x` the groups' values, `candidates` the groups not excluded (bitmask); returns (sensors used,
+    /// fused value, outlier mask, used mask).
     fn fuse_axis(
         &mut self,
         a: usize,
-        axes: &[[i32; AXES]; G],
-        excluded: &[[bool; 2]; G],
+        x: &[i32; G],
+        candidates: u32,
         kind: usize,
         recompute: bool,
     ) -> (u8, i32, u32, u32) {
-        // Candidates: value and group, in a fixed-size buffer.
-        let mut vals = [0i32; G];
-        let mut n = 0;
-        for (v, ex) in axes.iter().zip(excluded) {
-            if let (false, Some(slot), Some(&x)) = (ex[kind], vals.get_mut(n), v.get(a)) {
-                *slot = x;
-                n += 1;
-            }
-        }
+        let Some(state) = self.axes.get_mut(a) else {
+            return (0, 0, 0, 0);
+        };
+        let n = candidates.count_ones() as usize;
         if n == 0 {
-            self.forget_residuals(a);
+            state.resid_valid = 0;
             return (0, 0, 0, 0);
         }
-        let mut sorted = vals;
-        let sorted = sorted.get_mut(..n).unwrap_or(&mut []);
-        sorted.sort_unstable();
-        let median = median_sorted(sorted);
+        // Candidates sorted, then padding that sorts after them.
+        let mut sorted: [i32; G] = core::array::from_fn(|g| {
+            if candidates >> g & 1 != 0 {
+                x[g]
+            } else {
+                i32::MAX
+            }
+        });
+        sort_small(&mut sorted);
+        let median = median_sorted(sorted.get(..n).unwrap_or(&[]));
+        let med = i64::from(median);
 
         // Robust scale: MAD of the candidates.
         let mut outliers = 0u32;
         if self.config.robust && n >= 3 {
-            let mut dev = [0i32; G];
-            for (d, &x) in dev.iter_mut().zip(sorted.iter()) {
-                *d = (i64::from(x) - i64::from(median))
-                    .unsigned_abs()
-                    .min(i32::MAX as u64) as i32;
-            }
-            let dev = dev.get_mut(..n).unwrap_or(&mut []);
-            dev.sort_unstable();
             let scale = self
                 .scale
                 .get_mut(a)
-                .map_or(0, |s| s.update(i64::from(median_sorted(dev))));
-            // |x − med| > k · 1.4826 · scale  ⇔  |x − med| · 2²⁴ > k_q8 · scale · 1.4826_q16
+                .map_or(0, |s| s.update(i64::from(mad_sorted(&sorted, n, median))));
+            // |x − med| > k · 1.4826 · scale  ⇔  |x − med| · 2²⁴ > k_q8 · scale · 1.4826_q16; for a limit L ≥ 0 and
+            // integer distances that is |x − med| > ⌊L / 2²⁴⌋ (a negative L, possible only by wrapping, passes all).
             let limit_q24 = i64::from(self.config.outlier_sigmas_q8) * scale * MAD_TO_SIGMA_Q16;
             let floor = i64::from(self.config.outlier_floor.get(kind).copied().unwrap_or(0));
-            for (g, (v, ex)) in axes.iter().zip(excluded).enumerate() {
-                let Some(&x) = v.get(a) else { continue };
-                let dist = (i64::from(x) - i64::from(median)).abs();
-                if !ex[kind] && dist > floor && (dist << 24) > limit_q24 {
-                    outliers |= 1 << g;
-                }
-            }
-        }
-
-        // Noise estimates and weights of the sensors used.
-        let shift = u32::from(self.config.noise_shift.min(31));
-        let settled = 1u32 << shift;
-        let mut var_min = u64::MAX;
-        let mut all_settled = true;
-        for (g, (v, ex)) in axes.iter().zip(excluded).enumerate() {
-            let Some(state) = self.axes.get_mut(g).and_then(|s| s.get_mut(a)) else {
-                continue;
+            let threshold = if limit_q24 >= 0 {
+                floor.max(limit_q24 >> 24)
+            } else {
+                floor
             };
-            let used = !ex[kind] && outliers & (1 << g) == 0;
-            let Some(&x) = v.get(a) else { continue };
-            if !used {
-                state.resid_valid = false;
-                continue;
-            }
-            let resid = (i64::from(x) - i64::from(median))
-                .clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
-            if state.resid_valid {
-                let d = i64::from(resid) - i64::from(state.last_resid);
-                let sample = (d.unsigned_abs().saturating_mul(d.unsigned_abs()) / 2).min(VAR_LIMIT);
-                if sample >= state.noise_var {
-                    state.noise_var += (sample - state.noise_var) >> shift;
-                } else {
-                    state.noise_var -= (state.noise_var - sample) >> shift;
+            if threshold < 0 {
+                outliers = candidates;
+            } else {
+                // |x − med| > t  ⇔  (x − med + t) ∉ [0, 2t]  ⇔  (x − med + t) as u64 > 2t, for t ≥ 0.
+                let (offset, span) = (threshold - med, 2 * threshold as u64);
+                for (g, &v) in x.iter().enumerate() {
+                    outliers |= u32::from((i64::from(v) + offset) as u64 > span) << g;
                 }
-                state.updates = state.updates.saturating_add(1);
+                outliers &= candidates;
             }
-            state.last_resid = resid;
-            state.resid_valid = true;
-            all_settled &= state.updates >= settled;
-            var_min = var_min.min(state.noise_var.max(1));
         }
+        let used = candidates & !outliers;
+
+        // Noise estimates of the sensors used.
+        let shift = u32::from(self.config.noise_shift.min(31));
+        let (round, settled) = ((1i64 << shift) - 1, 1u32 << shift);
+        let valid = state.resid_valid;
+        // Whether every used estimate has settled matters only for weighted means.
+        let weighted_mode = self.config.mode == FusionMode::InverseVariance;
+        let mut all_settled = weighted_mode;
+        let mut rest = used;
+        while rest != 0 {
+            let g = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            let (Some(e), Some(&v)) = (state.est.get_mut(g), x.get(g)) else {
+                break;
+            };
+            // = (x − median) clamped to i32
+            let resid = v.saturating_sub(median);
+            if valid >> g & 1 != 0 {
+                e.update(resid, shift, round);
+            }
+            e.last_resid = resid;
+            all_settled &= e.updates >= settled;
+        }
+        state.resid_valid = used;
+        // Weights (`recompute` implies the weighted mode).
         if recompute && all_settled {
-            for (state, ex) in self.axes.iter_mut().map(|s| s.get_mut(a)).zip(excluded) {
-                if let (Some(state), false) = (state, ex[kind]) {
-                    state.weight_q16 =
-                        ((var_min << 16) / state.noise_var.max(1)).clamp(1, 1 << 16) as u32;
+            let var_min = state
+                .est
+                .iter()
+                .enumerate()
+                .filter(|&(g, _)| used >> g & 1 != 0)
+                .fold(u64::MAX, |m, (_, e)| m.min(e.var.max(1)));
+            for (g, (w, e)) in state.weight_q16.iter_mut().zip(&state.est).enumerate() {
+                if candidates >> g & 1 != 0 {
+                    *w = ((var_min << 16) / e.var.max(1)).clamp(1, 1 << 16) as u32;
                 }
             }
             self.weights_ready = true;
         }
 
         // The mean over the used sensors.
-        let weighted = self.config.mode == FusionMode::InverseVariance && all_settled;
-        let (mut num, mut den, mut used, mut mask) = (0i64, 0i64, 0u8, 0u32);
-        for (g, (v, ex)) in axes.iter().zip(excluded).enumerate() {
-            let (Some(&x), Some(state)) = (v.get(a), self.axes.get(g).and_then(|s| s.get(a)))
-            else {
-                continue;
-            };
-            if ex[kind] || outliers & (1 << g) != 0 {
-                continue;
+        let (mut num, mut den) = (0i64, 0i64);
+        if all_settled {
+            for (g, (&v, &w)) in x.iter().zip(&state.weight_q16).enumerate() {
+                // w ≤ 2¹⁶: w · x is an i32 × i32 product.
+                let w = (w & (used >> g & 1).wrapping_neg()) as i32;
+                num += i64::from(w) * i64::from(v);
+                den += i64::from(w);
             }
-            let w = if weighted {
-                i64::from(state.weight_q16)
-            } else {
-                1
-            };
-            num += w * i64::from(x);
-            den += w;
-            used += 1;
-            mask |= 1 << g;
+        } else {
+            for (g, &v) in x.iter().enumerate() {
+                num += i64::from(v & (used >> g & 1).wrapping_neg() as i32);
+            }
+            den = i64::from(used.count_ones());
         }
         if den == 0 {
             return (0, 0, outliers, 0);
         }
-        (used, div_round(num, den), outliers, mask)
-    }
-
-    fn forget_residuals(&mut self, a: usize) {
-        for s in self.axes.iter_mut().filter_map(|s| s.get_mut(a)) {
-            s.resid_valid = false;
-        }
+        (used.count_ones() as u8, div_round(num, den), outliers, used)
     }
 }
 

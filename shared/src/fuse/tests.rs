@@ -217,3 +217,47 @@ fn helpers_round_and_take_medians() {
     assert_eq!(median_sorted(&[1, 2, 3, 10]), 3); // (2 + 3) / 2 = 2.5 → 3
     assert_eq!(median_sorted(&[]), 0);
 }
+
+/// The reference the fast helpers replace: sort, median, then a second sort of the deviations.
+fn reference_median_mad(v: &[i32]) -> (i32, i32) {
+    let mut sorted = v.to_vec();
+    sorted.sort_unstable();
+    let median = median_sorted(&sorted);
+    let mut dev: Vec<i32> = sorted
+        .iter()
+        .map(|&x| {
+            (i64::from(x) - i64::from(median))
+                .unsigned_abs()
+                .min(i32::MAX as u64) as i32
+        })
+        .collect();
+    dev.sort_unstable();
+    (median, median_sorted(&dev))
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(20000))]
+
+    /// The sorting network and the MAD by selection give exactly the sort-based results, ties and extremes included.
+    #[test]
+    fn network_sort_and_mad_selection_match_the_reference(
+        values in proptest::collection::vec(
+            proptest::prop_oneof![-3i32..3, proptest::prelude::any::<i32>(), proptest::strategy::Just(i32::MAX),
+                                  proptest::strategy::Just(i32::MIN)],
+            0..=16,
+        ),
+    ) {
+        let n = values.len();
+        let mut padded = [i32::MAX; 16];
+        padded[..n].copy_from_slice(&values);
+        sort_small(&mut padded);
+        let mut sorted = values.clone();
+        sorted.sort_unstable();
+        proptest::prop_assert_eq!(&padded[..n], &sorted[..]);
+        if n > 0 {
+            let (median, mad) = reference_median_mad(&values);
+            proptest::prop_assert_eq!(median_sorted(&padded[..n]), median);
+            proptest::prop_assert_eq!(mad_sorted(&padded, n, median), mad);
+        }
+    }
+}

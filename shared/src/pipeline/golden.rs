@@ -1,0 +1,398 @@
+//! Golden output test: a long deterministic, noisy frame stream with faults, lost and damaged frames, mode
+//! switches and commands goes through the pipeline, and everything it says is hashed: every queued output, every
+//! dump report (`poll_dump`), `last_fused()` after every frame and, at checkpoints, the fusion's noise estimates,
+//! weights and fault counters. The hashes were recorded from the code before the performance work; optimisations
+//! must leave every output bit unchanged.
+//!
+//! The stream uses integer noise and only exact f64 arithmetic (`board::nominal_codes`, `round`), so it is the same
+//! on every platform.
+
+use super::*;
+use crate::calib::{GroupCal, board};
+use crate::fuse::FusionMode;
+use crate::telemetry::encode;
+use crate::testutil::Rng;
+use crate::wire::FrameRepr;
+use crate::wire::frame::{
+    FRAME_LEN, RAW_ACCEL_X, RAW_ACCEL_Z, RAW_GYRO_A_X, RAW_GYRO_A_Z, RAW_GYRO_B_Y, RAW_PER_GROUP,
+};
+use core::fmt::Write;
+
+extern crate std;
+
+type HostPipeline = Pipeline<std::boxed::Box<AllanBank>>;
+
+/// FNV-1a, 64 bit: a hash whose value is fixed by its definition (unlike `DefaultHasher`).
+struct Fnv(u64);
+
+impl Fnv {
+    fn new() -> Self {
+        Self(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Write for Fnv {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        for &b in s.as_bytes() {
+            self.0 ^= u64::from(b);
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+        Ok(())
+    }
+}
+
+/// Triangle wave in [-1, 1] with the given period (frames), exact in f64.
+fn tri(i: usize, period: usize) -> f64 {
+    let p = (i % period) as f64 / period as f64;
+    if p < 0.5 {
+        4.0 * p - 1.0
+    } else {
+        3.0 - 4.0 * p
+    }
+}
+
+/// Integer noise, roughly normal: sum of four uniforms on −20 … 20, times `gain`.
+fn noise(rng: &mut Rng, gain: u64) -> f64 {
+    let s: i64 = (0..4).map(|_| (rng.next_u64() % 41) as i64 - 20).sum();
+    (s * gain as i64) as f64 / 2.0
+}
+
+/// The raw codes of frame `i`, faults included.
+fn frame(i: usize, seq: u16, decimation: u16, rng: &mut Rng) -> FrameRepr {
+    // Slow manoeuvres, and a fast swing between frames 13 000 and 13 600.
+    let mut rate = [
+        20.0 * tri(i, 3_001),
+        5.0 * tri(i + 700, 1_709),
+        -3.0 + 2.0 * tri(i, 997),
+    ];
+    if (13_000..13_600).contains(&i) {
+        rate[0] += 200.0 * tri(i, 150);
+    }
+    let accel = [
+        0.2 * tri(i, 2_503),
+        -0.1 * tri(i + 100, 4_001),
+        -1.0 + 0.05 * tri(i, 811),
+    ];
+    let codes = board::nominal_codes(rate, accel);
+    let mut raw = [[0u16; RAW_PER_GROUP]; GROUPS];
+    for (g, group) in raw.iter_mut().enumerate() {
+        // Group 5 is 4× noisier, group 13 2× quieter.
+        let gain = match g {
+            5 => 8,
+            13 => 1,
+            _ => 2,
+        };
+        for (c, &x) in group.iter_mut().zip(&codes) {
+            *c = (x + noise(rng, gain)).round().clamp(0.0, 65_535.0) as u16;
+        }
+    }
+    // Stuck: group 3's gyro A z repeats one code.
+    if (2_000..6_000).contains(&i) || (15_000..16_500).contains(&i) {
+        raw[3][RAW_GYRO_A_Z] = 19_700;
+    }
+    // Saturated: group 7's accelerometer x at the upper rail; group 9's gyro B y at 0 on every third frame.
+    if (4_000..8_000).contains(&i) {
+        raw[7][RAW_ACCEL_X] = u16::MAX;
+    }
+    if (12_000..12_300).contains(&i) && i.is_multiple_of(3) {
+        raw[9][RAW_GYRO_B_Y] = 0;
+    }
+    // Outliers: group 11's gyro x biased by 400 counts (≈ 17σ), group 2's accelerometer z by 600 counts.
+    if (6_000..20_000).contains(&i) {
+        raw[11][RAW_GYRO_A_X] = raw[11][RAW_GYRO_A_X].saturating_add(400);
+    }
+    if (9_000..18_000).contains(&i) {
+        raw[2][RAW_ACCEL_Z] = raw[2][RAW_ACCEL_Z].saturating_add(600);
+    }
+    // Every accelerometer saturated (axis invalid), then all but two (too few for outlier tests).
+    if (12_400..12_450).contains(&i) {
+        raw.iter_mut().for_each(|g| g[RAW_ACCEL_Z] = 0);
+    }
+    if (12_450..12_500).contains(&i) {
+        raw.iter_mut().skip(2).for_each(|g| g[RAW_ACCEL_Z] = 0);
+    }
+    // Only three gyros left (odd count of 3), then four (even).
+    if (14_000..14_040).contains(&i) {
+        raw.iter_mut()
+            .skip(3)
+            .for_each(|g| g[RAW_GYRO_A_X] = u16::MAX);
+    }
+    if (14_040..14_080).contains(&i) {
+        raw.iter_mut()
+            .skip(4)
+            .for_each(|g| g[RAW_GYRO_A_X] = u16::MAX);
+    }
+    FrameRepr {
+        seq,
+        decimation,
+        temp_cdeg: (!i.is_multiple_of(500)).then_some(2_000 + (i % 97) as i16),
+        raw,
+    }
+}
+
+/// A calibration with cross-couplings, scale errors and bias offsets that differ per group.
+fn calibration(seed: u64) -> CalibrationTable<GROUPS> {
+    let mut rng = Rng::new(seed);
+    let mut t = CalibrationTable::<GROUPS>::factory();
+    t.cal_id = seed as u32;
+    let mut jitter = |x: i32, spread: u64| {
+        x + ((rng.next_u64() % (2 * spread + 1)) as i64 - spread as i64) as i32
+    };
+    for g in t.groups.iter_mut() {
+        let GroupCal {
+            gyro_matrix_q12,
+            gyro_bias_q12,
+            accel_matrix_q12,
+            accel_bias_q12,
+        } = g;
+        gyro_matrix_q12
+            .as_flattened_mut()
+            .iter_mut()
+            .for_each(|m| *m = jitter(*m, 200_000));
+        accel_matrix_q12
+            .as_flattened_mut()
+            .iter_mut()
+            .for_each(|m| *m = jitter(*m, 9_000));
+        gyro_bias_q12
+            .iter_mut()
+            .chain(accel_bias_q12.iter_mut())
+            .for_each(|b| *b = jitter(*b, 40 << 12));
+    }
+    t
+}
+
+/// How often each situation the test is meant to cover occurred (asserted non-zero).
+#[derive(Debug, Default)]
+struct Seen {
+    stuck: u32,
+    saturated: u32,
+    outlier_gyro: u32,
+    outlier_accel: u32,
+    invalid: u32,
+    few: u32,
+    unequal_weights: u32,
+    allan_reports: u32,
+    fault_reports: u32,
+    health_reports: u32,
+    fused_reports: u32,
+}
+
+struct Run {
+    p: HostPipeline,
+    h: Fnv,
+    seen: Seen,
+}
+
+impl Run {
+    fn drain(&mut self) {
+        while let Some(o) = self.p.poll() {
+            write!(self.h, "{o:?}").unwrap();
+            match o {
+                Output::Telemetry(Telemetry::Health(_)) => self.seen.health_reports += 1,
+                Output::Telemetry(Telemetry::Fused(_)) => self.seen.fused_reports += 1,
+                _ => {}
+            }
+        }
+    }
+
+    fn drain_dumps(&mut self) {
+        while let Some(t) = self.p.poll_dump() {
+            write!(self.h, "dump {t:?}").unwrap();
+            match t {
+                Telemetry::Allan(_) => self.seen.allan_reports += 1,
+                Telemetry::Faults(_) => self.seen.fault_reports += 1,
+                _ => {}
+            }
+        }
+    }
+
+    fn command(&mut self, tag: u16, cmd: Command) {
+        let mut buf = [0u8; 256];
+        self.p
+            .handle_command(encode(&CommandEnvelope { tag, cmd }, &mut buf).unwrap());
+        self.drain();
+        self.drain_dumps();
+    }
+
+    fn push(&mut self, mut bytes: &[u8]) {
+        loop {
+            self.p.push_link(&mut bytes);
+            self.drain();
+            if bytes.is_empty() {
+                return;
+            }
+        }
+    }
+
+    fn checkpoint(&mut self) {
+        let f = self.p.fusion();
+        for g in 0..GROUPS {
+            for a in 0..AXES {
+                self.seen.unequal_weights += u32::from(f.weight_q16(g, a) < Some(1 << 16));
+                write!(
+                    self.h,
+                    "{g} {a} {:?} {:?}",
+                    f.noise_var(g, a),
+                    f.weight_q16(g, a)
+                )
+                .unwrap();
+            }
+            write!(self.h, "{:?}", f.fault_counts(g)).unwrap();
+        }
+        write!(self.h, "{:?} {:?}", self.p.health(), self.p.tau0_ps()).unwrap();
+    }
+}
+
+/// Runs `n` frames with `config`; returns the hash.
+fn golden_run(config: PipelineConfig, n: usize, seed: u64) -> u64 {
+    let mut r = Run {
+        p: Pipeline::new(config, std::boxed::Box::new(AllanBank::new())),
+        h: Fnv::new(),
+        seen: Seen::default(),
+    };
+    r.p.load_calibration(calibration(seed), crate::telemetry::CalSource::Stored);
+    let mut rng = Rng::new(seed ^ 0x5555);
+    let combos = [
+        (FusionMode::InverseVariance, true),
+        (FusionMode::Equal, true),
+        (FusionMode::InverseVariance, false),
+        (FusionMode::Equal, false),
+    ];
+    let mut seq = 0u16;
+    for i in 0..n {
+        if i % 3_000 == 0 {
+            let (mode, robust) = combos[(i / 3_000) % 4];
+            r.command(i as u16, Command::SetFusion { mode, robust });
+        }
+        if i % 4_000 == 3_999 {
+            r.command(
+                1,
+                Command::AllanRequest {
+                    first: 0,
+                    count: ALLAN_CHANNELS as u8,
+                },
+            );
+        }
+        if i % 5_000 == 2_500 {
+            r.command(2, Command::HealthRequest { detail: true });
+        }
+        match i {
+            7_000 => r.command(3, Command::SetOutputRate(7)),
+            9_500 => r.command(4, Command::SetOutputRate(1)),
+            10_200 => r.command(5, Command::SetOutputRate(32)),
+            19_000 => {
+                r.p.load_calibration(calibration(seed + 1), crate::telemetry::CalSource::Uploaded)
+            }
+            21_000 => r.command(6, Command::AllanReset),
+            _ => {}
+        }
+        if i % 1_000 == 0 {
+            r.checkpoint();
+        }
+        // Lost frames (sequence gaps), and a decimation change at 17 000.
+        seq = seq.wrapping_add(if i % 997 == 500 { 3 } else { 1 });
+        let decimation = if i >= 17_000 { 7 } else { 15 };
+        let mut bytes = frame(i, seq, decimation, &mut rng).to_bytes();
+        if i % 1_499 == 700 {
+            // Damaged: the CRC fails and the frame is lost.
+            bytes[100] ^= 0x04;
+        }
+        if i % 1_201 == 300 {
+            // Garbage before the frame, including a false sync marker.
+            r.push(&[0x00, 0x1A, 0xCF, 0x77, 0x1A, 0xCF, 0xFC]);
+        }
+        if i % 7 == 3 {
+            // Split delivery: the decoder's buffered path.
+            let (a, b) = bytes.split_at(61 + i % 150);
+            r.push(a);
+            r.push(b);
+        } else {
+            r.push(&bytes);
+        }
+        assert_eq!(bytes.len(), FRAME_LEN);
+        let last = *r.p.last_fused();
+        write!(r.h, "{last:?}").unwrap();
+        let (hg, ha) = (last.health.gyro, last.health.accel);
+        let seen = &mut r.seen;
+        seen.stuck += u32::from(hg.stuck != 0);
+        seen.saturated += u32::from(ha.saturated != 0);
+        seen.outlier_gyro += u32::from(hg.outlier != 0);
+        seen.outlier_accel += u32::from(ha.outlier != 0);
+        seen.invalid += u32::from(!last.valid());
+        seen.few += u32::from(last.used.iter().any(|&u| (1..=4).contains(&u)));
+    }
+    r.command(
+        7,
+        Command::AllanRequest {
+            first: 0,
+            count: ALLAN_CHANNELS as u8,
+        },
+    );
+    r.command(8, Command::HealthRequest { detail: true });
+    r.checkpoint();
+    std::println!("{:?}", r.seen);
+    let Seen {
+        stuck,
+        saturated,
+        outlier_gyro,
+        outlier_accel,
+        invalid,
+        few,
+        unequal_weights,
+        allan_reports,
+        fault_reports,
+        health_reports,
+        fused_reports,
+    } = r.seen;
+    for (what, count) in [
+        ("stuck", stuck),
+        ("saturated", saturated),
+        ("gyro outlier", outlier_gyro),
+        ("accel outlier", outlier_accel),
+        ("invalid", invalid),
+        ("few sensors", few),
+        ("unequal weights", unequal_weights),
+        ("Allan reports", allan_reports),
+        ("fault reports", fault_reports),
+        ("health reports", health_reports),
+        ("fused reports", fused_reports),
+    ] {
+        assert!(count > 0, "the stream never had: {what}");
+    }
+    r.h.0
+}
+
+/// Hashes of the outputs of the code before the performance work (commit `abea7a2`): must never change.
+const GOLDEN_DEFAULT: u64 = 0x70d0_7e78_5ac0_c4d5;
+const GOLDEN_FAST: u64 = 0x6737_b60e_ddf2_5fc4;
+
+#[test]
+fn outputs_are_bit_exact() {
+    let default = golden_run(
+        PipelineConfig {
+            health_every: 3,
+            ..PipelineConfig::DEFAULT
+        },
+        24_000,
+        11,
+    );
+    // Fast estimators and frequent weight changes, short stuck window, one output per frame.
+    let fast = golden_run(
+        PipelineConfig {
+            frames_per_output: 1,
+            health_every: 50,
+            fusion: FusionConfig {
+                stuck_window: 8,
+                noise_shift: 4,
+                weight_interval: 16,
+                outlier_sigmas_q8: 3 * 256,
+                ..FusionConfig::DEFAULT
+            },
+            ..PipelineConfig::DEFAULT
+        },
+        15_000,
+        12,
+    );
+    std::println!("golden hashes: {default:#018x} {fast:#018x}");
+    assert_eq!((default, fast), (GOLDEN_DEFAULT, GOLDEN_FAST));
+}
