@@ -142,24 +142,50 @@ proptest! {
         chunks in proptest::collection::vec(1usize..700, 1..8),
     ) {
         let mut stream = Vec::new();
-        let mut expected = Vec::new();
+        let mut frames = Vec::new();
         for (i, d) in damages.iter().enumerate() {
             let f = frame(i as u16, seed ^ i as u64);
             let mut bytes = f.to_bytes().to_vec();
-            let intact = match d {
-                Damage::None => true,
-                Damage::Flip { at, bit } => { bytes[*at] ^= 1 << bit; false }
-                Damage::Drop { at } => { bytes.remove(*at); false }
-                // An insertion at either end lies between two frames: both stay intact.
-                Damage::Insert { at, byte } => { bytes.insert(*at, *byte); *at == 0 || *at == FRAME_LEN }
-                Damage::GarbageBefore(g) => { stream.extend_from_slice(g); true }
-            };
-            if intact { expected.push(f); }
+            match d {
+                Damage::None => {}
+                Damage::Flip { at, bit } => bytes[*at] ^= 1 << bit,
+                Damage::Drop { at } => _ = bytes.remove(*at),
+                Damage::Insert { at, byte } => bytes.insert(*at, *byte),
+                Damage::GarbageBefore(g) => stream.extend_from_slice(g),
+            }
+            frames.push(f);
             stream.extend(bytes);
+        }
+        // Expected: exactly the frames whose 240 bytes are intact, in order, in the stream. (Damage can cancel out:
+        // a dropped first sync byte right after an inserted 0x1A leaves the frame whole.)
+        let mut expected = Vec::new();
+        let mut from = 0;
+        for f in &frames {
+            let b = f.to_bytes();
+            if let Some(at) = stream[from..].windows(FRAME_LEN).position(|w| w == b) {
+                expected.push(*f);
+                from += at + FRAME_LEN;
+            }
         }
         let mut dec = FrameDecoder::new();
         let got: Vec<FrameRepr> = decode_all(&mut dec, &stream, &chunks).into_iter().map(|d| d.frame).collect();
         prop_assert_eq!(got, expected.clone());
         prop_assert_eq!(dec.counters().frames as usize, expected.len());
     }
+}
+
+#[test]
+fn damage_that_cancels_out_leaves_the_frame_whole() {
+    // Frame 0 gains a trailing 0x1A, frame 1 loses its first byte (0x1A): frame 1's bytes are intact again.
+    let frames: Vec<FrameRepr> = (0..3).map(|i| frame(i, 77 + u64::from(i))).collect();
+    let mut stream = frames[0].to_bytes().to_vec();
+    stream.push(0x1A);
+    stream.extend_from_slice(&frames[1].to_bytes()[1..]);
+    stream.extend_from_slice(&frames[2].to_bytes());
+    let mut dec = FrameDecoder::new();
+    let got: Vec<FrameRepr> = decode_all(&mut dec, &stream, &[7])
+        .into_iter()
+        .map(|d| d.frame)
+        .collect();
+    assert_eq!(got, frames);
 }
