@@ -83,7 +83,14 @@ pub struct AdevRequest {
 }
 
 /// One series to compute: label, kind, axis, group, members, data.
-type Job = (String, SensorKind, usize, Option<usize>, usize, Vec<f64>);
+type Job<'a> = (
+    String,
+    SensorKind,
+    usize,
+    Option<usize>,
+    usize,
+    std::borrow::Cow<'a, [f64]>,
+);
 
 /// Analyses a recording: selected columns and, if asked, the cluster mean of each axis. `tick` is called once per
 /// finished series (from worker threads).
@@ -104,13 +111,29 @@ pub fn analyze(
         .columns
         .iter()
         .filter(|c| req.columns.is_empty() || req.columns.contains(&c.name()))
-        .map(|c| (c.name(), c.kind, c.axis, Some(c.group), 1, c.data.clone()))
+        .map(|c| {
+            (
+                c.name(),
+                c.kind,
+                c.axis,
+                Some(c.group),
+                1,
+                std::borrow::Cow::Borrowed(c.data.as_slice()),
+            )
+        })
         .collect();
     if req.cluster {
         for kind in [SensorKind::Gyro, SensorKind::Accel] {
             for axis in 0..3 {
                 if let Some((data, n)) = cluster_mean(rec, kind, axis) {
-                    jobs.push((mean_label(kind, axis), kind, axis, None, n, data));
+                    jobs.push((
+                        mean_label(kind, axis),
+                        kind,
+                        axis,
+                        None,
+                        n,
+                        std::borrow::Cow::Owned(data),
+                    ));
                 }
             }
         }

@@ -2,8 +2,100 @@
 //! `temp_c` (optional) in °C, then per sensor group `gSSx/y/z` in °/s and `aSSx/y/z` in g, any number of groups, any
 //! subset of axes. Columns may come in any order; unknown columns are ignored with a warning.
 
+use rayon::prelude::*;
 use std::fmt::Write as _;
 use std::path::Path;
+
+/// Decimals of sensor values in the files we write: 1e-9 °/s or g, four orders of magnitude below anything these
+/// tools report, and short enough for the exact fast path of [`parse_f64`].
+pub const VALUE_DECIMALS: usize = 9;
+
+/// Appends `v` with [`VALUE_DECIMALS`] decimals, trailing zeros removed (`-0.02839027`, `1`, `0.5`).
+pub fn push_value(out: &mut String, v: f64) {
+    let start = out.len();
+    let _ = write!(out, "{v:.VALUE_DECIMALS$}");
+    if out[start..].contains('.') {
+        let trimmed = out.trim_end_matches('0').trim_end_matches('.').len();
+        out.truncate(trimmed);
+    }
+    if &out[start..] == "-0" {
+        out.truncate(start);
+        out.push('0');
+    }
+}
+
+/// Parses a decimal number. Plain forms (`[-+]digits[.digits][e[-+]digits]` with a mantissa below 2⁵³ and a
+/// decimal exponent within ±22) are converted exactly by Clinger's fast path (one correctly rounded product or
+/// quotient of two exact doubles); anything else goes to the standard library. Both give the correctly rounded
+/// value.
+pub fn parse_f64(s: &str) -> Option<f64> {
+    const POW10: [f64; 23] = [
+        1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16,
+        1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
+    ];
+    let b = s.as_bytes();
+    let (neg, mut i) = match b.first() {
+        Some(b'-') => (true, 1),
+        Some(b'+') => (false, 1),
+        _ => (false, 0),
+    };
+    let (mut mant, mut digits, mut exp) = (0u64, 0usize, 0i32);
+    let start = i;
+    while let Some(&c) = b.get(i).filter(|c| c.is_ascii_digit()) {
+        mant = mant.wrapping_mul(10).wrapping_add(u64::from(c - b'0'));
+        digits += 1;
+        i += 1;
+    }
+    if b.get(i) == Some(&b'.') {
+        i += 1;
+        while let Some(&c) = b.get(i).filter(|c| c.is_ascii_digit()) {
+            mant = mant.wrapping_mul(10).wrapping_add(u64::from(c - b'0'));
+            digits += 1;
+            exp -= 1;
+            i += 1;
+        }
+    }
+    if matches!(b.get(i), Some(b'e' | b'E')) {
+        i += 1;
+        let eneg = match b.get(i) {
+            Some(b'-') => {
+                i += 1;
+                true
+            }
+            Some(b'+') => {
+                i += 1;
+                false
+            }
+            _ => false,
+        };
+        let (mut e, mut ed) = (0i32, 0);
+        while let Some(&c) = b.get(i).filter(|c| c.is_ascii_digit()) {
+            e = e.saturating_mul(10).saturating_add(i32::from(c - b'0'));
+            ed += 1;
+            i += 1;
+        }
+        if ed == 0 {
+            return s.parse().ok();
+        }
+        exp = exp.saturating_add(if eneg { -e } else { e });
+    }
+    if i != b.len()
+        || digits == 0
+        || i == start
+        || digits > 19
+        || mant > 1 << 53
+        || !(-22..=22).contains(&exp)
+    {
+        return s.parse().ok();
+    }
+    let m = mant as f64;
+    let v = if exp >= 0 {
+        m * POW10[exp as usize]
+    } else {
+        m / POW10[(-exp) as usize]
+    };
+    Some(if neg { -v } else { v })
+}
 
 /// Gyro or accelerometer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -137,6 +229,137 @@ pub enum CsvError {
     },
 }
 
+/// Number of `\n` in `s` (written so that it vectorises).
+fn count_newlines(s: &str) -> usize {
+    s.as_bytes().iter().map(|&b| usize::from(b == b'\n')).sum()
+}
+
+const POW10: [f64; 23] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16,
+    1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
+];
+
+/// Parses a plain decimal (`[-]digits[.digits]`, ≤ 19 digits, mantissa ≤ 2⁵³, ≤ 22 decimals) at `b[p..]`; returns
+/// the value and the index after it, or `None` (the caller then takes the general path). Exact: Clinger's fast path.
+#[inline]
+fn fast_number(b: &[u8], mut p: usize) -> Option<(f64, usize)> {
+    let neg = b.get(p) == Some(&b'-');
+    p += usize::from(neg);
+    let start = p;
+    let mut mant = 0u64;
+    while let Some(&c) = b.get(p) {
+        let d = c.wrapping_sub(b'0');
+        if d >= 10 {
+            break;
+        }
+        mant = mant.wrapping_mul(10).wrapping_add(u64::from(d));
+        p += 1;
+    }
+    let int_digits = p - start;
+    let mut frac = 0;
+    if b.get(p) == Some(&b'.') {
+        p += 1;
+        let fstart = p;
+        while let Some(&c) = b.get(p) {
+            let d = c.wrapping_sub(b'0');
+            if d >= 10 {
+                break;
+            }
+            mant = mant.wrapping_mul(10).wrapping_add(u64::from(d));
+            p += 1;
+        }
+        frac = p - fstart;
+    }
+    if int_digits + frac == 0 || int_digits + frac > 19 || mant > 1 << 53 || frac > 22 {
+        return None;
+    }
+    let m = mant as f64 / POW10[frac];
+    Some((if neg { -m } else { m }, p))
+}
+
+/// Parses the rows of one piece in one pass over its bytes, writing row r of output column c into `out[c][r]`;
+/// returns the rows written. `first_line` is the file line number of the line before the piece's first one (a
+/// piece starts right after a line end); `target_of[col]` is the output column of each file column (`None`:
+/// ignored).
+fn parse_chunk(
+    chunk: &str,
+    first_line: usize,
+    roles: &[Role],
+    target_of: &[Option<usize>],
+    names: &[&str],
+    out: &mut [&mut [f64]],
+) -> Result<usize, CsvError> {
+    let b = chunk.as_bytes();
+    let n = b.len();
+    let ncols = roles.len();
+    let (mut p, mut line_no, mut row) = (0usize, first_line, 0usize);
+    while let Some(&c0) = b.get(p) {
+        // Empty line, or the empty remainder of the line before the piece.
+        if matches!(c0, b'\n' | b'\r') {
+            line_no += usize::from(c0 == b'\n');
+            p += 1;
+            continue;
+        }
+        let mut col = 0;
+        loop {
+            let target = target_of.get(col).copied().flatten();
+            let fast = target.and_then(|_| {
+                fast_number(b, p)
+                    .filter(|&(_, q)| matches!(b.get(q), Some(b',' | b'\n' | b'\r') | None))
+            });
+            let value = match fast {
+                Some((v, q)) => {
+                    p = q;
+                    Some(v)
+                }
+                None => {
+                    // General path: the whole cell, trimmed, through `parse_f64`.
+                    let end = b
+                        .get(p..)
+                        .and_then(|r| r.iter().position(|&c| matches!(c, b',' | b'\n')))
+                        .map_or(n, |k| p + k);
+                    let cell = chunk.get(p..end).unwrap_or("").trim();
+                    p = end;
+                    match target {
+                        None => None,
+                        Some(_) => Some(parse_f64(cell).ok_or_else(|| CsvError::Cell {
+                            line: line_no,
+                            column: col + 1,
+                            name: names.get(col).unwrap_or(&"?").to_string(),
+                            what: format!("expected a number, found '{cell}'"),
+                        })?),
+                    }
+                }
+            };
+            if let (Some(v), Some(t)) = (value, target)
+                && let Some(slot) = out.get_mut(t).and_then(|c| c.get_mut(row))
+            {
+                *slot = v;
+            }
+            col += 1;
+            if b.get(p) == Some(&b'\r') {
+                p += 1;
+            }
+            match b.get(p) {
+                Some(b',') => p += 1,
+                _ => break,
+            }
+        }
+        if col != ncols {
+            return Err(CsvError::Width {
+                line: line_no,
+                expected: ncols,
+                found: col,
+            });
+        }
+        row += 1;
+        // At '\n' (or the end).
+        p += 1;
+        line_no += 1;
+    }
+    Ok(row)
+}
+
 /// What a column of the file is.
 enum Role {
     Time,
@@ -218,9 +441,10 @@ impl Recording {
             .lines()
             .enumerate()
             .filter(|(_, l)| !l.trim().is_empty());
-        let (_, header) = lines
+        let (header_index, header) = lines
             .next()
             .ok_or_else(|| CsvError::Header("the file is empty".into()))?;
+        let header_line = header_index + 1;
         let names: Vec<&str> = header.split(',').map(str::trim).collect();
         let mut warnings = Vec::new();
         let mut roles = Vec::with_capacity(names.len());
@@ -271,38 +495,91 @@ impl Recording {
         if columns.is_empty() {
             return Err(CsvError::Header("no sensor columns (gSSx … aSSz)".into()));
         }
+        // The body is cut into chunks at line ends and parsed in parallel; each chunk knows its first line number,
+        // so errors still point at the right line.
+        let body_start = header.as_ptr() as usize - text.as_ptr() as usize + header.len();
+        let body = text.get(body_start..).unwrap_or("");
+        let parts = (rayon::current_num_threads() * 4).max(1);
+        let mut pieces: Vec<&str> = Vec::with_capacity(parts + 1);
+        let mut rest = body;
+        while !rest.is_empty() {
+            let target = (body.len() / parts).max(1 << 16).min(rest.len());
+            let cut = rest
+                .get(target..)
+                .and_then(|r| r.find('\n'))
+                .map_or(rest.len(), |i| target + i + 1);
+            let (piece, tail) = rest.split_at(cut);
+            pieces.push(piece);
+            rest = tail;
+        }
+        // Line ends per piece (in parallel): the first line number of every piece, and room for its rows.
+        let newlines: Vec<usize> = pieces.par_iter().map(|p| count_newlines(p)).collect();
+        let mut first_lines = Vec::with_capacity(pieces.len());
+        let mut row_start = Vec::with_capacity(pieces.len() + 1);
+        let (mut line_no, mut rows) = (header_line, 0usize);
+        for (piece, &nl) in pieces.iter().zip(&newlines) {
+            first_lines.push(line_no);
+            row_start.push(rows);
+            rows += nl + usize::from(!piece.ends_with('\n'));
+            line_no += nl;
+        }
+        row_start.push(rows);
+        // Every piece writes its rows straight into its own slices of the final columns.
+        let n_targets = 1 + usize::from(has_temp) + columns.len();
+        let mut targets: Vec<Vec<f64>> = (0..n_targets).map(|_| vec![0.0; rows]).collect();
+        let mut views: Vec<Vec<&mut [f64]>> = (0..pieces.len())
+            .map(|_| Vec::with_capacity(n_targets))
+            .collect();
+        for target in targets.iter_mut() {
+            let mut rest: &mut [f64] = target;
+            for (view, w) in views.iter_mut().zip(row_start.windows(2)) {
+                let (mine, tail) = rest.split_at_mut(w[1] - w[0]);
+                view.push(mine);
+                rest = tail;
+            }
+        }
+        let target_of: Vec<Option<usize>> = roles
+            .iter()
+            .map(|r| match r {
+                Role::Time => Some(0),
+                Role::Temp => Some(1),
+                Role::Sensor(k) => Some(1 + usize::from(has_temp) + k),
+                Role::Ignored => None,
+            })
+            .collect();
+        let written: Vec<Result<usize, CsvError>> = pieces
+            .par_iter()
+            .zip(views.par_iter_mut())
+            .zip(first_lines.par_iter())
+            .map(|((piece, view), &first)| {
+                parse_chunk(piece, first, &roles, &target_of, &names, view)
+            })
+            .collect();
+        drop(views);
+        // Pieces with empty lines wrote fewer rows than they had room for: close the gaps.
+        let mut counts = Vec::with_capacity(written.len());
+        for w in written {
+            counts.push(w?);
+        }
+        let total: usize = counts.iter().sum();
+        if total != rows {
+            for target in targets.iter_mut() {
+                let mut to = 0;
+                for (w, &c) in row_start.windows(2).zip(&counts) {
+                    target.copy_within(w[0]..w[0] + c, to);
+                    to += c;
+                }
+                target.truncate(total);
+            }
+        }
+        let mut targets = targets.into_iter();
         let mut rec = Recording {
-            temp_c: has_temp.then(Vec::new),
-            ..Default::default()
+            t_s: targets.next().unwrap_or_default(),
+            temp_c: if has_temp { targets.next() } else { None },
+            columns: Vec::new(),
         };
-        for (i, line) in lines {
-            let mut found = 0;
-            for (col, (cell, role)) in line.split(',').zip(&roles).enumerate() {
-                found += 1;
-                if matches!(role, Role::Ignored) {
-                    continue;
-                }
-                let v: f64 = cell.trim().parse().map_err(|_| CsvError::Cell {
-                    line: i + 1,
-                    column: col + 1,
-                    name: names.get(col).unwrap_or(&"?").to_string(),
-                    what: format!("expected a number, found '{}'", cell.trim()),
-                })?;
-                match role {
-                    Role::Time => rec.t_s.push(v),
-                    Role::Temp => rec.temp_c.get_or_insert_with(Vec::new).push(v),
-                    Role::Sensor(k) => columns[*k].data.push(v),
-                    Role::Ignored => {}
-                }
-            }
-            let total = line.split(',').count();
-            if found != roles.len() || total != roles.len() {
-                return Err(CsvError::Width {
-                    line: i + 1,
-                    expected: roles.len(),
-                    found: total,
-                });
-            }
+        for (c, data) in columns.iter_mut().zip(targets) {
+            c.data = data;
         }
         columns.sort_by_key(|c| (c.kind, c.group, c.axis));
         rec.columns = columns;
@@ -318,8 +595,8 @@ impl Recording {
         Self::parse(&text)
     }
 
-    /// Writes the canonical CSV (gyro columns of a group, then its accel columns; groups in order). Numbers use
-    /// Rust's shortest round-trip representation, so reading the file back gives the same values.
+    /// Writes the canonical CSV (gyro columns of a group, then its accel columns; groups in order). Time in Rust's
+    /// shortest round-trip form; sensor values and temperature with [`VALUE_DECIMALS`] decimals.
     pub fn write(&self, path: &Path) -> std::io::Result<()> {
         use std::io::Write;
         let mut order: Vec<&Column> = self.columns.iter().collect();
@@ -338,10 +615,12 @@ impl Recording {
             row.clear();
             let _ = write!(row, "{}", self.t_s[i]);
             if let Some(t) = &self.temp_c {
-                let _ = write!(row, ",{}", t.get(i).copied().unwrap_or(f64::NAN));
+                row.push(',');
+                push_value(&mut row, t.get(i).copied().unwrap_or(f64::NAN));
             }
             for c in &order {
-                let _ = write!(row, ",{}", c.data.get(i).copied().unwrap_or(f64::NAN));
+                row.push(',');
+                push_value(&mut row, c.data.get(i).copied().unwrap_or(f64::NAN));
             }
             writeln!(out, "{row}")?;
         }
@@ -373,6 +652,112 @@ mod tests {
         );
         assert_eq!(Recording::read(&p).unwrap().0, rec);
         assert!((rec.sample_interval_s().unwrap() - 0.1).abs() < 1e-15);
+    }
+
+    #[test]
+    fn large_files_parse_in_chunks_with_exact_line_numbers() {
+        let mut text = String::from("t,g00x,a00z\n");
+        for i in 0..40_000 {
+            text.push_str(&format!("{},{}.5,-{}\n", i, i, i));
+        }
+        let (rec, _) = Recording::parse(&text).unwrap();
+        assert_eq!(rec.len(), 40_000);
+        assert_eq!(rec.column("g00x").unwrap().data[39_999], 39_999.5);
+        assert_eq!(rec.column("a00z").unwrap().data[12_345], -12_345.0);
+        // An error deep in the file: line 1 is the header, so sample 31 000 is on line 31 002.
+        let bad = text.replacen("31000.5", "31x00.5", 1);
+        let e = Recording::parse(&bad).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "line 31002, column 2 (g00x): expected a number, found '31x00.5'"
+        );
+        // Blank lines anywhere (also across pieces) are skipped, and the rows stay in order.
+        let blanks =
+            text.replacen("\n1000,", "\n\n\n1000,", 1)
+                .replacen("\n30000,", "\n\r\n30000,", 1)
+                + "\n\n";
+        let (rec, _) = Recording::parse(&blanks).unwrap();
+        assert_eq!(rec.len(), 40_000);
+        assert!(rec.t_s.windows(2).all(|w| w[1] == w[0] + 1.0));
+        assert_eq!(rec.column("g00x").unwrap().data[39_999], 39_999.5);
+        let bad = blanks.replacen("31000.5", "31x00.5", 1);
+        let e = Recording::parse(&bad).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "line 31005, column 2 (g00x): expected a number, found '31x00.5'"
+        );
+        let short = text.replacen("\n25000,25000.5,-25000\n", "\n25000,25000.5\n", 1);
+        let e = Recording::parse(&short).unwrap_err().to_string();
+        assert_eq!(e, "line 25002: expected 3 comma-separated values, found 2");
+    }
+
+    #[test]
+    fn fast_parser_agrees_with_std_and_writer_is_compact() {
+        let cases = [
+            "0",
+            "-0",
+            "1",
+            "-1.5",
+            "0.028390270",
+            "-0.02839027",
+            "123456789.123456789",
+            "1e-3",
+            "2.5E+7",
+            "9007199254740993",
+            "0.1",
+            "3.14159265358979323846",
+            "1e300",
+            "-4.9e-324",
+            "17",
+            ".5",
+            "5.",
+            "1e",
+            "x",
+            "",
+            "-",
+            "nan",
+            "inf",
+            "+7",
+            "0.000000001",
+        ];
+        for c in cases {
+            let want: Option<f64> = c.parse().ok();
+            assert_eq!(
+                parse_f64(c).map(f64::to_bits),
+                want.map(f64::to_bits),
+                "{c}"
+            );
+        }
+        let mut s = 0x2545_F491_4F6C_DD1Du64;
+        for _ in 0..200_000 {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            let v = (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+            let mut out = String::new();
+            push_value(&mut out, v);
+            assert_eq!(
+                parse_f64(&out).map(f64::to_bits),
+                out.parse::<f64>().ok().map(f64::to_bits),
+                "{out}"
+            );
+            assert!(
+                (parse_f64(&out).unwrap() - v).abs() <= 0.5e-9 + 1e-17,
+                "{v} → {out}"
+            );
+            let full = format!("{v}");
+            assert_eq!(
+                parse_f64(&full).map(f64::to_bits),
+                Some(v.to_bits()),
+                "{full}"
+            );
+        }
+        let mut out = String::new();
+        for v in [0.5, -0.0, 1.0, -0.0283902700001, 1e-12] {
+            push_value(&mut out, v);
+            out.push(' ');
+        }
+        assert_eq!(out, "0.5 0 1 -0.02839027 0 ");
     }
 
     #[test]

@@ -457,18 +457,21 @@ impl Chunk {
     }
 
     /// Appends the interchange CSV row of sample `i` (columns of [`csv_header`] with `with_temp` =
-    /// `!self.temp_c.is_empty()`), with a newline; numbers in Rust's shortest round-trip form.
+    /// `!self.temp_c.is_empty()`), with a newline; time in Rust's shortest round-trip form, values with
+    /// `formats::csv::VALUE_DECIMALS` decimals.
     pub fn write_csv_row(&self, i: usize, out: &mut String) {
         let (Some(t), Some(p)) = (self.t_s.get(i), self.phys.get(i)) else {
             return;
         };
         let _ = write!(out, "{t}");
         if let Some(tc) = self.temp_c.get(i) {
-            let _ = write!(out, ",{tc}");
+            out.push(',');
+            crate::formats::csv::push_value(out, *tc);
         }
         for g in p {
             for v in g {
-                let _ = write!(out, ",{v}");
+                out.push(',');
+                crate::formats::csv::push_value(out, *v);
             }
         }
         out.push('\n');
