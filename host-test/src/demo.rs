@@ -186,17 +186,7 @@ pub fn run(
     let log = TelemetryLog::decode(&telemetry, &BusConfig::DEFAULT);
     let fused: Vec<[f64; AXES]> = log
         .fused()
-        .map(|r| {
-            let v = [
-                r.rate_udps[0],
-                r.rate_udps[1],
-                r.rate_udps[2],
-                r.accel_ug[0],
-                r.accel_ug[1],
-                r.accel_ug[2],
-            ];
-            v.map(|x| f64::from(x) / 1e6)
-        })
+        .map(|r| r.axes().map(|x| f64::from(x) / 1e6))
         .collect();
     let mut core_allan: Vec<Vec<(usize, f64, u32)>> = vec![Vec::new(); ALLAN_CHANNELS];
     let mut tau0_s = 1.0 / 18.9;

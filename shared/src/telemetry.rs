@@ -39,6 +39,15 @@ pub struct FusedReport {
     pub temp_cdeg: Option<i16>,
 }
 
+impl FusedReport {
+    /// The six mean axes in `calib::GX … AZ` order: rates in µ°/s, then specific force in µg.
+    pub fn axes(&self) -> [i32; 6] {
+        let [gx, gy, gz] = self.rate_udps;
+        let [ax, ay, az] = self.accel_ug;
+        [gx, gy, gz, ax, ay, az]
+    }
+}
+
 /// One level of one Allan channel. The ground computes `σ²(τ) = sum_sq / (2 · count · m²)`, m = 2^level,
 /// τ = m · τ₀, in the channel's unit squared (channels 0..96: group g = ch / 6, axis ch % 6 in `calib::GX…AZ`
 /// order; 96..102: the fused axes).

@@ -75,19 +75,19 @@ impl TelemetryLog {
              gyro_faults,accel_faults,temp_c"
         )?;
         for r in self.fused() {
-            let u = r.used;
+            let (u, v) = (r.used, r.axes());
             writeln!(
                 out,
                 "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:#x},{:#x},{}",
                 r.seq,
                 r.t_us as f64 / 1e6,
                 r.frames,
-                r.rate_udps[0],
-                r.rate_udps[1],
-                r.rate_udps[2],
-                r.accel_ug[0],
-                r.accel_ug[1],
-                r.accel_ug[2],
+                v[0],
+                v[1],
+                v[2],
+                v[3],
+                v[4],
+                v[5],
                 u[0],
                 u[1],
                 u[2],
