@@ -408,3 +408,39 @@ fn allan_dump_reports_every_filled_level() {
         (300, 1_653_439_153, 300 / 8 - 1)
     );
 }
+
+mod no_panic {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(300))]
+
+        /// Any link bytes, any command bytes, any valid frames with arbitrary ADC codes (rails and extremes
+        /// included): the pipeline never panics and keeps answering.
+        #[test]
+        fn arbitrary_input_never_panics(
+            link in proptest::collection::vec(any::<u8>(), 0..2000),
+            commands in proptest::collection::vec(proptest::collection::vec(any::<u8>(), 0..80), 0..6),
+            codes in proptest::collection::vec(any::<u16>(), RAW_PER_GROUP * GROUPS),
+            decimation in any::<u16>(),
+            fpo in 1u16..8,
+        ) {
+            let mut p = Pipeline::new_boxed(PipelineConfig { frames_per_output: fpo, health_every: 1, ..PipelineConfig::DEFAULT });
+            let mut raw = [[0u16; RAW_PER_GROUP]; GROUPS];
+            raw.as_flattened_mut().copy_from_slice(&codes);
+            let mut bytes = link.clone();
+            for seq in 0..3u16 {
+                bytes.extend_from_slice(&FrameRepr { seq, decimation, temp_cdeg: None, raw }.to_bytes());
+            }
+            bytes.extend_from_slice(&link);
+            run(&mut p, &bytes);
+            for c in &commands {
+                p.handle_command(c);
+                drain(&mut p);
+            }
+            command(&mut p, 1, Command::AllanRequest { first: 0, count: u8::MAX });
+            prop_assert_eq!(ack(&command(&mut p, 2, Command::Ping)), Ack { tag: 2, result: Ok(()) });
+        }
+    }
+}
