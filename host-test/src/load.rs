@@ -63,7 +63,8 @@ pub const MIMU_IMUS: usize = crate::mimu::IMUS;
 
 /// Reads a calibration file of either array (`.bin`, `.json`, `.toml`).
 pub fn read_any_calibration(path: &Path) -> Result<Calibration> {
-    let err = |e: crate::calibrate::CalibError| anyhow::anyhow!("{}: {e}", path.display());
+    // The calibration errors already name the file.
+    let err = |e: crate::calibrate::CalibError| anyhow::anyhow!("{e}");
     if let Ok(t) = crate::calibrate::read_calibration::<GROUPS>(path) {
         return Ok(Calibration::Board(Box::new(
             t.to_table::<GROUPS>().map_err(err)?,
