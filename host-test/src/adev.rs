@@ -187,6 +187,37 @@ pub fn write_long_csv(series: &[Series], out: &mut impl std::io::Write) -> std::
     Ok(())
 }
 
+/// Writes the noise-term fit of every series: `column,unit,white,bias_instability,random_walk,quantization,
+/// rel_rms_misfit,min_dev,tau_at_min_s,min_ci_lo,min_ci_hi`. Units (with `unit` = °/s or g): white in unit/√Hz
+/// (ARW/VRW), bias instability in unit, random walk in unit/√s, quantisation in unit·s, deviations in unit.
+pub fn write_fit_csv(series: &[Series], out: &mut impl std::io::Write) -> std::io::Result<()> {
+    writeln!(
+        out,
+        "column,unit,white,bias_instability,random_walk,quantization,rel_rms_misfit,min_dev,tau_at_min_s,min_ci_lo,min_ci_hi"
+    )?;
+    let opt = |x: Option<f64>| x.map_or(String::new(), |v| format!("{v:e}"));
+    for s in series {
+        let f = &s.fit;
+        let m = s.minimum();
+        writeln!(
+            out,
+            "{},{},{:e},{:e},{:e},{:e},{:.4},{},{},{},{}",
+            s.label,
+            s.kind.unit(),
+            f.white,
+            f.bias_instability,
+            f.random_walk,
+            f.quantization,
+            f.rel_rms_misfit,
+            opt(m.map(|p| p.dev)),
+            m.map_or(String::new(), |p| round_sig(p.tau_s, 10).to_string()),
+            opt(m.and_then(|p| p.dev_lo)),
+            opt(m.and_then(|p| p.dev_hi)),
+        )?;
+    }
+    Ok(())
+}
+
 /// `x` rounded to `digits` significant digits (for printing times derived from float sample intervals).
 pub fn round_sig(x: f64, digits: usize) -> f64 {
     format!("{:.*e}", digits.saturating_sub(1), x)
@@ -367,6 +398,12 @@ mod tests {
             .parse()
             .unwrap();
         assert!((density / (mean.fit.white * std::f64::consts::PI / 180.0) - 1.0).abs() < 1e-6);
+        let mut fits = Vec::new();
+        write_fit_csv(&series, &mut fits).unwrap();
+        let fits = String::from_utf8(fits).unwrap();
+        let row: Vec<&str> = fits.lines().nth(1).unwrap().split(',').collect();
+        assert_eq!((row[0], row[1]), ("g00x", "deg/s"));
+        assert!((row[2].parse::<f64>().unwrap() / 0.01 - 1.0).abs() < 0.03);
         let mut csv = Vec::new();
         write_long_csv(&series, &mut csv).unwrap();
         let text = String::from_utf8(csv).unwrap();

@@ -263,6 +263,10 @@ struct AllanArgs {
     /// Kalibr imu.yaml from the cluster means' noise fits.
     #[arg(long)]
     kalibr: Option<PathBuf>,
+    /// Noise-term fit of every column (white/ARW, bias instability, rate random walk, quantisation) and the curve's
+    /// minimum with its 68 % interval, as CSV.
+    #[arg(long)]
+    fit: Option<PathBuf>,
     /// Time window START:END in seconds.
     #[arg(long)]
     window: Option<String>,
@@ -524,6 +528,13 @@ fn allan(a: AllanArgs) -> Result<()> {
     if let Some(p) = &a.plot {
         plot_adev(p, &series, &a.recording)?;
         println!("plot: {}", p.display());
+    }
+    if let Some(f) = &a.fit {
+        let mut w = std::io::BufWriter::new(
+            std::fs::File::create(f).with_context(|| format!("creating {}", f.display()))?,
+        );
+        adev::write_fit_csv(&series, &mut w)?;
+        println!("noise fits: {}", f.display());
     }
     if let Some(k) = &a.kalibr {
         let rate = 1.0 / rec.sample_interval_s().unwrap_or(f64::NAN);
