@@ -105,6 +105,7 @@ fn noisy_sensor_weighted_beats_equal_by_expected_factor() {
     let (_, eq, _, _) = s.run(PLAIN_EQUAL, 60_000, 2);
     let (fusion, w, _, _) = s.run(PLAIN_WEIGHTED, 60_000, 2);
     let ratio = rms(&eq[warm..]) / rms(&w[warm..]);
+    std::println!("weighted vs equal: {ratio:.3}");
     // Equal: σ²(15 + 100)/256; optimal weights: σ²/(15 + 1/100). Ratio of deviations √6.7428 = 2.597.
     let expected = ((15.0 + 100.0) / 256.0 * (15.0 + 0.01f64)).sqrt();
     assert!(
