@@ -804,10 +804,12 @@ impl Simulator {
         n
     }
 
-    /// Runs the rest of the simulation and returns the readings (°/s, g) of the selected raw channels.
-    pub fn collect_readings(
+    /// Runs the rest of the simulation, appending to one series per selected `(group, item)` what `take` extracts
+    /// from each chunk.
+    fn collect<S: Copy>(
         &mut self,
-        sel: &[(usize, Channel)],
+        sel: &[(usize, S)],
+        take: impl Fn(&Chunk, usize, S, &mut Vec<f64>),
     ) -> Result<Vec<Vec<f64>>, SimError> {
         check(sel.iter().all(|&(g, _)| g < GROUPS), || {
             "group out of range".into()
@@ -816,27 +818,28 @@ impl Simulator {
         let mut out: Vec<Vec<f64>> = sel.iter().map(|_| Vec::with_capacity(cap)).collect();
         let mut chunk = Chunk::default();
         while self.next_chunk(&mut chunk) > 0 {
-            for (o, &(g, c)) in out.iter_mut().zip(sel) {
-                o.extend_from_slice(chunk.reading(g, c));
+            for (o, &(g, item)) in out.iter_mut().zip(sel) {
+                take(&chunk, g, item, o);
             }
         }
         Ok(out)
     }
 
+    /// Runs the rest of the simulation and returns the readings (°/s, g) of the selected raw channels.
+    pub fn collect_readings(
+        &mut self,
+        sel: &[(usize, Channel)],
+    ) -> Result<Vec<Vec<f64>>, SimError> {
+        self.collect(sel, |chunk, g, c, o| {
+            o.extend_from_slice(chunk.reading(g, c))
+        })
+    }
+
     /// Runs the rest of the simulation and returns the physical outputs (°/s, g) of the selected group axes.
     pub fn collect_physical(&mut self, sel: &[(usize, Axis)]) -> Result<Vec<Vec<f64>>, SimError> {
-        check(sel.iter().all(|&(g, _)| g < GROUPS), || {
-            "group out of range".into()
-        })?;
-        let cap = self.remaining().min(1 << 24) as usize;
-        let mut out: Vec<Vec<f64>> = sel.iter().map(|_| Vec::with_capacity(cap)).collect();
-        let mut chunk = Chunk::default();
-        while self.next_chunk(&mut chunk) > 0 {
-            for (o, &(g, a)) in out.iter_mut().zip(sel) {
-                o.extend(chunk.phys.iter().map(|p| p[g][a.index()]));
-            }
-        }
-        Ok(out)
+        self.collect(sel, |chunk, g, a, o| {
+            o.extend(chunk.phys.iter().map(|p| p[g][a.index()]))
+        })
     }
 
     /// Convenience: all samples of one physical axis of one group for `cfg`.
