@@ -760,6 +760,30 @@ mod tests {
         assert_eq!(out, "0.5 0 1 -0.02839027 0 ");
     }
 
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(2000))]
+        /// Random edits of a valid file (and random bytes) give a recording or a positioned error, never a panic.
+        #[test]
+        fn mangled_files_never_panic(edits in proptest::collection::vec((0usize..400, proptest::prelude::any::<u8>()), 0..12),
+                                     junk in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..200)) {
+            let mut text = String::from("t,temp_c,g00x,a00z,zz\n");
+            for i in 0..12 {
+                text.push_str(&format!("{},{}.5,-0.{}25,{}e-3,x\n", i, 20 + i, i, i));
+            }
+            let mut bytes = text.into_bytes();
+            let len = bytes.len();
+            for (at, b) in edits {
+                if let Some(x) = bytes.get_mut(at % len) {
+                    *x = b;
+                }
+            }
+            if let Ok(t) = std::str::from_utf8(&bytes) {
+                let _ = Recording::parse(t);
+            }
+            let _ = Recording::parse(&String::from_utf8_lossy(&junk));
+        }
+    }
+
     #[test]
     fn errors_say_where_and_what() {
         let e = Recording::parse("t,g00x\n0,1\n0.1,abc\n")
