@@ -147,3 +147,47 @@ fn analyzer_reuse_gives_identical_results() {
         }
     }
 }
+
+#[test]
+fn octave_noise_id_from_the_block_pyramid_equals_the_direct_computation() {
+    use host_test::allan::{AcfFlavor, Phase, noise_id};
+    // White noise plus a random walk, so that several noise types occur along the octaves.
+    let w = lcg(1 << 15, 11);
+    let mut acc = 0.0;
+    let y: Vec<f64> = w
+        .iter()
+        .map(|x| {
+            acc += 0.02 * x;
+            x + acc
+        })
+        .collect();
+    for kind in [DevKind::Adev, DevKind::Oadev, DevKind::Mdev] {
+        let pts = analyze(
+            kind,
+            &y,
+            0.1,
+            &TauSpec::Octave,
+            &Options {
+                stable32_carry: false,
+                ..Options::default()
+            },
+        );
+        let phase = Phase::from_frequency(&y, 0.1).unwrap();
+        for p in &pts {
+            let direct = noise_id(kind, &y, &phase, p.m, AcfFlavor::Stable32);
+            assert_eq!(
+                p.noise.map(|n| n.alpha),
+                direct.map(|n| n.alpha),
+                "{kind:?} m = {}",
+                p.m
+            );
+            if let (Some(a), Some(b)) = (p.noise.and_then(|n| n.acf), direct.and_then(|n| n.acf)) {
+                assert!(
+                    (a.delta - b.delta).abs() <= 1e-9 * (1.0 + b.delta.abs()),
+                    "{kind:?} m = {}",
+                    p.m
+                );
+            }
+        }
+    }
+}

@@ -3,7 +3,7 @@
 use super::ci::{ONE_SIGMA_CI, confidence_interval};
 use super::deviation::{DevKind, Phase};
 use super::edf::edf_for_kind;
-use super::noise::{AcfFlavor, NoiseId, noise_id_with};
+use super::noise::{AcfFlavor, NoiseId, noise_id_pyramid};
 use super::taus::{TauSpec, averaging_factors};
 
 /// Options of [`analyze`] / [`Analyzer::analyze`].
@@ -67,6 +67,8 @@ impl AnalysisPoint {
 pub struct Analyzer {
     phase: Phase,
     scratch: Vec<f64>,
+    /// Block means of the current series at m = 2^k (level k), built pairwise as needed.
+    pyramid: Vec<Vec<f64>>,
 }
 
 impl Analyzer {
@@ -92,6 +94,22 @@ impl Analyzer {
         }
         let n_samples = y.len();
         let ms = averaging_factors(taus, kind, n_samples);
+        // Level k of the pyramid holds the means of blocks of 2^k samples (for the ACF noise identification).
+        let top = ms
+            .iter()
+            .filter(|m| m.is_power_of_two())
+            .map(|m| m.trailing_zeros() as usize)
+            .max();
+        self.pyramid.resize_with(top.map_or(0, |t| t + 1), Vec::new);
+        for k in 0..self.pyramid.len() {
+            let (lower, upper) = self.pyramid.split_at_mut(k);
+            let level = &mut upper[0];
+            level.clear();
+            match lower.last() {
+                None => level.extend_from_slice(y),
+                Some(prev) => level.extend(prev.chunks_exact(2).map(|p| 0.5 * (p[0] + p[1]))),
+            }
+        }
         let carry_limit = 2 * kind.stable32_stop_ratio();
         let mut out = Vec::with_capacity(ms.len());
         let mut prev_alpha: Option<i32> = None;
@@ -105,13 +123,14 @@ impl Analyzer {
                     let long_tau = opts.stable32_carry && m.saturating_mul(carry_limit) > n_samples;
                     match prev_alpha {
                         Some(a) if long_tau => Some(NoiseId::carried(a)),
-                        _ => noise_id_with(
+                        _ => noise_id_pyramid(
                             kind,
                             y,
                             &self.phase,
                             m,
                             opts.acf_flavor,
                             &mut self.scratch,
+                            &self.pyramid,
                         )
                         .or_else(|| prev_alpha.map(NoiseId::carried)),
                     }

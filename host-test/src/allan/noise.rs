@@ -123,6 +123,19 @@ pub(crate) fn acf_noise_id_with(
     dmax: u32,
     z: &mut Vec<f64>,
 ) -> Option<AcfResult> {
+    acf_noise_id_pyramid(y, m, flavor, dmax, z, &[])
+}
+
+/// [`acf_noise_id_with`] taking the block means of a power-of-two `m` from `pyramid` (level k = means of 2^k
+/// samples, built by pairwise averaging) when it has that level: O(N/m) instead of O(N) per τ.
+pub(crate) fn acf_noise_id_pyramid(
+    y: &[f64],
+    m: usize,
+    flavor: AcfFlavor,
+    dmax: u32,
+    z: &mut Vec<f64>,
+    pyramid: &[Vec<f64>],
+) -> Option<AcfResult> {
     if m == 0 {
         return None;
     }
@@ -130,7 +143,16 @@ pub(crate) fn acf_noise_id_with(
     if points < ACF_MIN_POINTS {
         return None;
     }
-    block_averages(y, m, z);
+    match pyramid
+        .get(m.trailing_zeros() as usize)
+        .filter(|l| m.is_power_of_two() && l.len() == points)
+    {
+        Some(level) => {
+            z.clear();
+            z.extend_from_slice(level);
+        }
+        None => block_averages(y, m, z),
+    }
     if flavor == AcfFlavor::Allantools {
         detrend_linear(z);
     }
@@ -332,12 +354,25 @@ pub(crate) fn noise_id_with(
     flavor: AcfFlavor,
     scratch: &mut Vec<f64>,
 ) -> Option<NoiseId> {
+    noise_id_pyramid(kind, y, phase, m, flavor, scratch, &[])
+}
+
+/// [`noise_id_with`] with a pyramid of block means (see [`acf_noise_id_pyramid`]).
+pub(crate) fn noise_id_pyramid(
+    kind: DevKind,
+    y: &[f64],
+    phase: &Phase,
+    m: usize,
+    flavor: AcfFlavor,
+    scratch: &mut Vec<f64>,
+    pyramid: &[Vec<f64>],
+) -> Option<NoiseId> {
     if m == 0 {
         return None;
     }
     if y.len() / m >= ACF_MIN_POINTS {
         let (dmax, _, _) = kind.greenhall_params();
-        let r = acf_noise_id_with(y, m, flavor, dmax, scratch)?;
+        let r = acf_noise_id_pyramid(y, m, flavor, dmax, scratch, pyramid)?;
         Some(NoiseId {
             alpha: r.alpha_int.clamp(-2, 2),
             alpha_raw: r.alpha_int,

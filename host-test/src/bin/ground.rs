@@ -482,6 +482,7 @@ fn parse_window(s: &str) -> Result<(f64, f64)> {
 }
 
 fn allan(a: AllanArgs) -> Result<()> {
+    let t0 = std::time::Instant::now();
     let cal = any_calib(&a.calib)?;
     let pb = spinner("reading");
     let mut loaded = load::load_with(&a.recording, cal.as_ref(), 9_676_800)?;
@@ -510,19 +511,23 @@ fn allan(a: AllanArgs) -> Result<()> {
     } else {
         req.columns.len()
     } + 6;
+    let t_read = t0.elapsed().as_secs_f64();
     let pb = bar(n_series as u64, "series");
     let series = adev::analyze(rec, &req, &|| pb.inc(1)).map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
+    let t_analysis = t0.elapsed().as_secs_f64() - t_read;
     let mut out = std::io::BufWriter::new(
         std::fs::File::create(&a.out).with_context(|| format!("creating {}", a.out.display()))?,
     );
     adev::write_long_csv(&series, &mut out)?;
     println!(
-        "{}: {} series, {} samples at {:.6} s",
+        "{}: {} series, {} samples at {:.6} s (reading {:.2} s, analysis {:.2} s)",
         a.out.display(),
         series.len(),
         rec.len(),
-        rec.sample_interval_s().unwrap_or(f64::NAN)
+        rec.sample_interval_s().unwrap_or(f64::NAN),
+        t_read,
+        t_analysis
     );
     print_summary(&series);
     if let Some(p) = &a.plot {
