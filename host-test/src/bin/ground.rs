@@ -229,6 +229,9 @@ struct DecodeArgs {
     /// Output: .csv (fused samples) or .jsonl (every message).
     #[arg(long)]
     out: PathBuf,
+    /// Also the Allan deviations of the core's Allan reports (roots taken here), as CSV.
+    #[arg(long)]
+    allan: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -439,6 +442,13 @@ fn decode(a: DecodeArgs) -> Result<()> {
             "{}: the output must end in .csv (fused samples) or .jsonl (all messages)",
             a.out.display()
         ),
+    }
+    if let Some(p) = &a.allan {
+        let mut w = std::io::BufWriter::new(
+            std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?,
+        );
+        let n = log.write_allan_csv(&mut w)?;
+        println!("{}: {n} Allan levels", p.display());
     }
     let s = log.stats;
     println!(

@@ -103,6 +103,48 @@ impl TelemetryLog {
         Ok(())
     }
 
+    /// Writes the Allan deviations the core's reports give, one row per channel and level:
+    /// `channel,column,tau_s,count,samples,dev`. `column` names the channel as in the interchange CSV (`g03z` for
+    /// group 3's gyro z, `mean_gz` for the fused axis), `dev` is √(sum_sq / (2·count·m²)) in °/s or g — the root
+    /// taken here, on the ground, from the exact integer sums. The last report of each (channel, level) counts.
+    pub fn write_allan_csv(&self, out: &mut impl std::io::Write) -> std::io::Result<usize> {
+        use shared::pipeline::{FUSED_CHANNEL0, SENSOR_CHANNELS};
+        let mut last: std::collections::BTreeMap<(u8, u8), shared::telemetry::AllanReport> =
+            Default::default();
+        for m in &self.messages {
+            if let Telemetry::Allan(a) = m {
+                last.insert((a.channel, a.level.level), *a);
+            }
+        }
+        writeln!(out, "channel,column,tau_s,count,samples,dev")?;
+        for ((ch, _), a) in &last {
+            let ch = usize::from(*ch);
+            let axis = ch % 6;
+            let kind = if axis < 3 {
+                super::csv::SensorKind::Gyro
+            } else {
+                super::csv::SensorKind::Accel
+            };
+            let name = if ch < SENSOR_CHANNELS {
+                super::csv::column_name(kind, ch / 6, axis % 3)
+            } else {
+                crate::adev::mean_label(kind, (ch - FUSED_CHANNEL0) % 3)
+            };
+            let Some(avar) = a.level.avar() else { continue };
+            let tau = a.tau0_ps as f64 * 1e-12 * (1u64 << a.level.level) as f64;
+            // µ°/s → °/s, µg → g
+            writeln!(
+                out,
+                "{ch},{name},{},{},{},{:e}",
+                crate::adev::round_sig(tau, 10),
+                a.level.count,
+                a.samples,
+                avar.sqrt() / 1e6
+            )?;
+        }
+        Ok(last.len())
+    }
+
     /// Writes every message as one JSON object per line (`{"Fused":{…}}`, `{"Allan":{…}}`, …).
     pub fn write_jsonl(&self, out: &mut impl std::io::Write) -> std::io::Result<()> {
         for m in &self.messages {
@@ -110,5 +152,41 @@ impl TelemetryLog {
             writeln!(out)?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared::allan::AllanLevel;
+    use shared::bus::BusNode;
+    use shared::telemetry::{AllanReport, encode};
+
+    #[test]
+    fn allan_reports_become_deviations_on_the_ground() {
+        // Channel 3 = group 0 accel x; level 2 (m = 4): σ² = sum_sq / (2·count·16) µg².
+        let node = BusNode::new(BusConfig::DEFAULT);
+        let report = AllanReport {
+            channel: 3,
+            tau0_ps: 1_653_439_153,
+            samples: 400,
+            level: AllanLevel {
+                level: 2,
+                count: 99,
+                sum_sq: 2 * 99 * 16 * 2500,
+            },
+        };
+        let (mut payload, mut wire) = ([0u8; 64], [0u8; 200]);
+        let p = encode(&Telemetry::Allan(report), &mut payload).unwrap();
+        let n = node.encode_telemetry(p, &mut wire).unwrap();
+        let log = TelemetryLog::decode(&wire[..n], &BusConfig::DEFAULT);
+        let mut out = Vec::new();
+        assert_eq!(log.write_allan_csv(&mut out).unwrap(), 1);
+        let text = String::from_utf8(out).unwrap();
+        // √2500 µg = 50 µg = 5e-5 g at τ = 4 × 1.653 ms.
+        assert_eq!(
+            text.lines().nth(1),
+            Some("3,a00x,0.006613756612,99,400,5e-5")
+        );
     }
 }
