@@ -225,10 +225,3 @@ pub fn load(
         }
     }
 }
-
-/// Reads a calibration table file (`.bin`: the encoded table with CRC).
-pub fn load_calibration(path: &Path) -> Result<CalibrationTable<GROUPS>> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    CalibrationTable::decode(&bytes)
-        .map_err(|e| anyhow::anyhow!("{}: not a valid calibration table: {e:?}", path.display()))
-}

@@ -25,8 +25,8 @@ use crate::calib::{AXES, CalibrationTable, RawCounts, encoded_len_max};
 use crate::crc::crc32c;
 use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, HealthMask, div_round};
 use crate::telemetry::{
-    Ack, AllanReport, CAL_CHUNK_MAX, CalSource, Command, CommandEnvelope, DecodeError, FaultReport,
-    FusedReport, HealthReport, Reject, Telemetry, decode, peek_tag,
+    Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, FusedReport,
+    HealthReport, Reject, Telemetry, decode, peek_tag,
 };
 use crate::wire::frame::GROUPS;
 use crate::wire::{Decoded, FpgaControl, FrameClock, FrameDecoder, LinkCounters};
@@ -575,9 +575,6 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         Ok(())
     }
 }
-
-/// The largest chunk of a calibration upload (re-exported for the ground's uploader).
-pub const CAL_CHUNK: usize = CAL_CHUNK_MAX;
 
 #[cfg(test)]
 mod golden;

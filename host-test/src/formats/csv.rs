@@ -24,77 +24,14 @@ pub fn push_value(out: &mut String, v: f64) {
     }
 }
 
-/// Parses a decimal number. Plain forms (`[-+]digits[.digits][e[-+]digits]` with a mantissa below 2⁵³ and a
-/// decimal exponent within ±22) are converted exactly by Clinger's fast path (one correctly rounded product or
-/// quotient of two exact doubles); anything else goes to the standard library. Both give the correctly rounded
-/// value.
+/// Parses a decimal number. Plain forms (`[-]digits[.digits]`, see [`fast_number`]) are converted exactly by
+/// Clinger's fast path; anything else (exponents, `+`, long mantissas) goes to the standard library. Both give the
+/// correctly rounded value.
 pub fn parse_f64(s: &str) -> Option<f64> {
-    const POW10: [f64; 23] = [
-        1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16,
-        1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
-    ];
-    let b = s.as_bytes();
-    let (neg, mut i) = match b.first() {
-        Some(b'-') => (true, 1),
-        Some(b'+') => (false, 1),
-        _ => (false, 0),
-    };
-    let (mut mant, mut digits, mut exp) = (0u64, 0usize, 0i32);
-    let start = i;
-    while let Some(&c) = b.get(i).filter(|c| c.is_ascii_digit()) {
-        mant = mant.wrapping_mul(10).wrapping_add(u64::from(c - b'0'));
-        digits += 1;
-        i += 1;
+    match fast_number(s.as_bytes(), 0) {
+        Some((v, end)) if end == s.len() => Some(v),
+        _ => s.parse().ok(),
     }
-    if b.get(i) == Some(&b'.') {
-        i += 1;
-        while let Some(&c) = b.get(i).filter(|c| c.is_ascii_digit()) {
-            mant = mant.wrapping_mul(10).wrapping_add(u64::from(c - b'0'));
-            digits += 1;
-            exp -= 1;
-            i += 1;
-        }
-    }
-    if matches!(b.get(i), Some(b'e' | b'E')) {
-        i += 1;
-        let eneg = match b.get(i) {
-            Some(b'-') => {
-                i += 1;
-                true
-            }
-            Some(b'+') => {
-                i += 1;
-                false
-            }
-            _ => false,
-        };
-        let (mut e, mut ed) = (0i32, 0);
-        while let Some(&c) = b.get(i).filter(|c| c.is_ascii_digit()) {
-            e = e.saturating_mul(10).saturating_add(i32::from(c - b'0'));
-            ed += 1;
-            i += 1;
-        }
-        if ed == 0 {
-            return s.parse().ok();
-        }
-        exp = exp.saturating_add(if eneg { -e } else { e });
-    }
-    if i != b.len()
-        || digits == 0
-        || i == start
-        || digits > 19
-        || mant > 1 << 53
-        || !(-22..=22).contains(&exp)
-    {
-        return s.parse().ok();
-    }
-    let m = mant as f64;
-    let v = if exp >= 0 {
-        m * POW10[exp as usize]
-    } else {
-        m / POW10[(-exp) as usize]
-    };
-    Some(if neg { -v } else { v })
 }
 
 /// Gyro or accelerometer.
@@ -239,36 +176,30 @@ const POW10: [f64; 23] = [
     1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
 ];
 
+/// Appends the decimal digits at `b[*p..]` to `mant` (wrapping; callers check the count), advancing `p`; returns
+/// how many there were.
+#[inline]
+fn digits(b: &[u8], p: &mut usize, mant: &mut u64) -> usize {
+    let start = *p;
+    while let Some(d) = b.get(*p).map(|c| c.wrapping_sub(b'0')).filter(|d| *d < 10) {
+        *mant = mant.wrapping_mul(10).wrapping_add(u64::from(d));
+        *p += 1;
+    }
+    *p - start
+}
+
 /// Parses a plain decimal (`[-]digits[.digits]`, ≤ 19 digits, mantissa ≤ 2⁵³, ≤ 22 decimals) at `b[p..]`; returns
 /// the value and the index after it, or `None` (the caller then takes the general path). Exact: Clinger's fast path.
 #[inline]
 fn fast_number(b: &[u8], mut p: usize) -> Option<(f64, usize)> {
     let neg = b.get(p) == Some(&b'-');
     p += usize::from(neg);
-    let start = p;
     let mut mant = 0u64;
-    while let Some(&c) = b.get(p) {
-        let d = c.wrapping_sub(b'0');
-        if d >= 10 {
-            break;
-        }
-        mant = mant.wrapping_mul(10).wrapping_add(u64::from(d));
-        p += 1;
-    }
-    let int_digits = p - start;
+    let int_digits = digits(b, &mut p, &mut mant);
     let mut frac = 0;
     if b.get(p) == Some(&b'.') {
         p += 1;
-        let fstart = p;
-        while let Some(&c) = b.get(p) {
-            let d = c.wrapping_sub(b'0');
-            if d >= 10 {
-                break;
-            }
-            mant = mant.wrapping_mul(10).wrapping_add(u64::from(d));
-            p += 1;
-        }
-        frac = p - fstart;
+        frac = digits(b, &mut p, &mut mant);
     }
     if int_digits + frac == 0 || int_digits + frac > 19 || mant > 1 << 53 || frac > 22 {
         return None;

@@ -6,7 +6,7 @@ pub mod csp;
 pub mod kiss;
 
 use csp::{CspError, CspHeader, CspPacket, PORT_PING};
-use kiss::{KissDecoder, KissError};
+use kiss::KissDecoder;
 
 /// Largest decoded KISS frame: header, 248 bytes of payload, link CRC (what every libcsp 1.x accepts by default).
 pub const MAX_FRAME: usize = 256;
@@ -171,16 +171,6 @@ impl BusNode {
         }
         CspPacket::emit_kiss(header, payload, out)
     }
-}
-
-/// Errors from the bus layers, for logs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum BusError {
-    /// KISS layer.
-    Kiss(KissError),
-    /// CSP layer.
-    Csp(CspError),
 }
 
 #[cfg(test)]
