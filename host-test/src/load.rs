@@ -140,58 +140,6 @@ pub fn mimu_recording(
 /// scales, when `None`).
 pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_mhz: u64) -> Result<Loaded> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    if detect(path, &bytes)? == InputKind::Mimu {
-        let m =
-            crate::mimu::parse(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        let table = match cal {
-            Some(Calibration::Mimu(t)) => Some(t.as_ref()),
-            Some(Calibration::Board(_)) => {
-                bail!(
-                    "{}: a 16-group calibration cannot apply to the 8-IMU MIMU4444 array",
-                    path.display()
-                )
-            }
-            None => None,
-        };
-        let s = &m.stats;
-        let notes = vec![format!(
-            "MIMU4444 stream: {} frames, {:.1} s, {} bytes skipped, {} checksum failures, {} packets missing{}",
-            m.frames.len(),
-            m.duration_s(),
-            s.bytes_skipped,
-            s.checksum_failures,
-            s.packets_missing,
-            if table.is_none() {
-                " (nominal scales, each IMU in its own frame)"
-            } else {
-                " (calibrated, cluster frame)"
-            }
-        )];
-        return Ok(Loaded {
-            recording: mimu_recording(&m, table),
-            notes,
-        });
-    }
-    let board = match cal {
-        Some(Calibration::Board(t)) => Some(t.as_ref()),
-        Some(Calibration::Mimu(_)) => {
-            bail!(
-                "{}: an 8-IMU calibration cannot apply to our 16-group frames",
-                path.display()
-            )
-        }
-        None => None,
-    };
-    load(path, board, base_rate_mhz)
-}
-
-/// Loads a recording; raw formats go through `cal` (factory default when `None`).
-pub fn load(
-    path: &Path,
-    cal: Option<&CalibrationTable<GROUPS>>,
-    base_rate_mhz: u64,
-) -> Result<Loaded> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     match detect(path, &bytes)? {
         InputKind::Csv => {
             let text = String::from_utf8(bytes)
@@ -200,14 +148,55 @@ pub fn load(
                 Recording::parse(&text).with_context(|| path.display().to_string())?;
             Ok(Loaded { recording, notes })
         }
-        InputKind::Mimu => load_with(path, None, base_rate_mhz),
+        InputKind::Mimu => {
+            let m = crate::mimu::parse(&bytes)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            let table = match cal {
+                Some(Calibration::Mimu(t)) => Some(t.as_ref()),
+                Some(Calibration::Board(_)) => {
+                    bail!(
+                        "{}: a 16-group calibration cannot apply to the 8-IMU MIMU4444 array",
+                        path.display()
+                    )
+                }
+                None => None,
+            };
+            let s = &m.stats;
+            let notes = vec![format!(
+                "MIMU4444 stream: {} frames, {:.1} s, {} bytes skipped, {} checksum failures, {} packets missing{}",
+                m.frames.len(),
+                m.duration_s(),
+                s.bytes_skipped,
+                s.checksum_failures,
+                s.packets_missing,
+                if table.is_none() {
+                    " (nominal scales, each IMU in its own frame)"
+                } else {
+                    " (calibrated, cluster frame)"
+                }
+            )];
+            Ok(Loaded {
+                recording: mimu_recording(&m, table),
+                notes,
+            })
+        }
         InputKind::FrameLog => {
+            let board = match cal {
+                Some(Calibration::Board(t)) => Some(t.as_ref()),
+                Some(Calibration::Mimu(_)) => {
+                    bail!(
+                        "{}: an 8-IMU calibration cannot apply to our 16-group frames",
+                        path.display()
+                    )
+                }
+                None => None,
+            };
             let log = FrameLog::decode(&bytes);
             if log.frames.is_empty() {
                 bail!("{}: no valid frame found", path.display());
             }
             let factory = CalibrationTable::factory();
-            let recording = log.to_recording(cal.unwrap_or(&factory), base_rate_mhz);
+            let recording = log.to_recording(board.unwrap_or(&factory), base_rate_mhz);
             let c = log.counters;
             let notes = vec![format!(
                 "frame log: {} frames, {} CRC errors, {} bytes skipped, {} frames missing by sequence{}",
@@ -215,7 +204,7 @@ pub fn load(
                 c.crc_errors,
                 c.bytes_skipped,
                 c.frames_dropped,
-                if cal.is_none() {
+                if board.is_none() {
                     " (factory calibration)"
                 } else {
                     ""
