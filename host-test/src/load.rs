@@ -139,13 +139,15 @@ pub fn mimu_recording(
 /// Loads a recording; raw formats go through `cal` (the factory default of our board, or the MIMU4444's nominal
 /// scales, when `None`).
 pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_mhz: u64) -> Result<Loaded> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    // A CSV is known by its name and streamed (never held whole in memory); the others are read whole.
+    let bytes = match detect(path, &[]) {
+        Ok(InputKind::Csv) => Vec::new(),
+        _ => std::fs::read(path).with_context(|| format!("reading {}", path.display()))?,
+    };
     match detect(path, &bytes)? {
         InputKind::Csv => {
-            let text = String::from_utf8(bytes)
-                .with_context(|| format!("{}: not UTF-8 text", path.display()))?;
             let (recording, notes) =
-                Recording::parse(&text).with_context(|| path.display().to_string())?;
+                Recording::read(path).with_context(|| path.display().to_string())?;
             Ok(Loaded { recording, notes })
         }
         InputKind::Mimu => {

@@ -166,9 +166,16 @@ pub enum CsvError {
     },
 }
 
-/// Number of `\n` in `s` (written so that it vectorises).
-fn count_newlines(s: &str) -> usize {
-    s.as_bytes().iter().map(|&b| usize::from(b == b'\n')).sum()
+/// Number of `\n` in `b`.
+fn count_newlines(b: &[u8]) -> usize {
+    let mut blocks = b.chunks_exact(64);
+    let mut n = 0;
+    for block in &mut blocks {
+        if let Ok(block) = <&[u8; 64]>::try_from(block) {
+            n += byte_mask(block, b'\n', b'\n').count_ones() as usize;
+        }
+    }
+    n + blocks.remainder().iter().filter(|&&c| c == b'\n').count()
 }
 
 const POW10: [f64; 23] = [
@@ -190,105 +197,331 @@ fn digits(b: &[u8], p: &mut usize, mant: &mut u64) -> usize {
 
 /// Parses a plain decimal (`[-]digits[.digits]`, ≤ 19 digits, mantissa ≤ 2⁵³, ≤ 22 decimals) at `b[p..]`; returns
 /// the value and the index after it, or `None` (the caller then takes the general path). Exact: Clinger's fast path.
-#[inline]
+/// Eight digits at a time where 24 bytes follow (the body of a file), one at a time near its end.
+#[inline(always)]
 fn fast_number(b: &[u8], mut p: usize) -> Option<(f64, usize)> {
     let neg = b.get(p) == Some(&b'-');
     p += usize::from(neg);
-    let mut mant = 0u64;
-    let int_digits = digits(b, &mut p, &mut mant);
-    let mut frac = 0;
-    if b.get(p) == Some(&b'.') {
-        p += 1;
-        frac = digits(b, &mut p, &mut mant);
-    }
+    let (mant, int_digits, frac, end) = match swar_number(b, p) {
+        Some(parsed) => parsed,
+        None => {
+            let mut mant = 0u64;
+            let int_digits = digits(b, &mut p, &mut mant);
+            let mut frac = 0;
+            if b.get(p) == Some(&b'.') {
+                p += 1;
+                frac = digits(b, &mut p, &mut mant);
+            }
+            (mant, int_digits, frac, p)
+        }
+    };
     if int_digits + frac == 0 || int_digits + frac > 19 || mant > 1 << 53 || frac > 22 {
         return None;
     }
+    // The sign as a bit, not a branch (it is a coin toss in noise data).
     let m = mant as f64 / POW10[frac];
-    Some((if neg { -m } else { m }, p))
+    Some((f64::from_bits(m.to_bits() | u64::from(neg) << 63), end))
 }
 
-/// Parses the rows of one piece in one pass over its bytes, writing row r of output column c into `out[c][r]`;
-/// returns the rows written. `first_line` is the file line number of the line before the piece's first one (a
-/// piece starts right after a line end); `target_of[col]` is the output column of each file column (`None`:
-/// ignored).
+/// `10^k` for k = 0 ..= 8.
+const POW10_U64: [u64; 9] = [
+    1,
+    10,
+    100,
+    1_000,
+    10_000,
+    100_000,
+    1_000_000,
+    10_000_000,
+    100_000_000,
+];
+
+/// The leading decimal digits of 8 bytes read little-endian (SWAR): (how many, 0 ..= 8; their value).
+#[inline(always)]
+fn swar_digits(word: u64) -> (usize, u64) {
+    const ZEROS: u64 = 0x3030_3030_3030_3030;
+    // Per byte c: t = c − '0' (a borrow only reaches bytes after the first non-digit); c is a digit ⇔ t < 10 ⇔
+    // neither t nor t + 0x76 has its top bit set. The lowest flagged byte is the first non-digit.
+    let t = word.wrapping_sub(ZEROS);
+    let non_digit = (t | t.wrapping_add(0x7676_7676_7676_7676)) & 0x8080_8080_8080_8080;
+    let count = (non_digit.trailing_zeros() / 8) as usize;
+    // The digits moved to the top bytes, zeros (leading zeros of the number) below, then combined pairwise: the
+    // first character is the lowest byte, the most significant digit.
+    let v = t.checked_shl(64 - 8 * count as u32).unwrap_or(0);
+    let v = (v.wrapping_mul(10) + (v >> 8)) & 0x00FF_00FF_00FF_00FF;
+    let v = (v.wrapping_mul(100) + (v >> 16)) & 0x0000_FFFF_0000_FFFF;
+    let v = (v.wrapping_mul(10_000) + (v >> 32)) & 0xFFFF_FFFF;
+    (count, v)
+}
+
+/// 8 bytes at `b[p..]`, little-endian.
+#[inline(always)]
+fn word_at(b: &[u8], p: usize) -> Option<u64> {
+    Some(u64::from_le_bytes(b.get(p..p + 8)?.try_into().ok()?))
+}
+
+/// The digits of `[digits][.digits]` at `b[p..]` eight at a time: (mantissa, integer digits, decimals, end), or
+/// `None` where fewer than 24 bytes remain or a part has 8 or more (integer) / 16 or more (decimal) digits.
+#[inline(always)]
+fn swar_number(b: &[u8], p: usize) -> Option<(u64, usize, usize, usize)> {
+    let (int_digits, int_value) = swar_digits(word_at(b, p)?);
+    if int_digits == 8 {
+        return None;
+    }
+    let dot = p + int_digits;
+    if b.get(dot) != Some(&b'.') {
+        return Some((int_value, int_digits, 0, dot));
+    }
+    // Two words of decimals; the second counts only when the first is all digits.
+    let (k1, v1) = swar_digits(word_at(b, dot + 1)?);
+    let (k2, v2) = swar_digits(word_at(b, dot + 9)?);
+    let (k2, v2) = if k1 == 8 { (k2, v2) } else { (0, 0) };
+    if k2 == 8 {
+        return None;
+    }
+    let pow = |k: usize| POW10_U64.get(k).copied().unwrap_or(1);
+    // Wraps only past 19 digits, which the caller rejects.
+    let mant = (int_value.wrapping_mul(pow(k1)) + v1)
+        .wrapping_mul(pow(k2))
+        .wrapping_add(v2);
+    Some((mant, int_digits, k1 + k2, dot + 1 + k1 + k2))
+}
+
+/// Bit i set where `block[i]` is `a` or `b`: the comparisons as 64 bytes of 0 or 1 (vectorised), then each 8
+/// of them packed into a byte by one multiplication (byte k of a word lands on bit 56 + k; no carries cross).
+#[inline(always)]
+fn byte_mask(block: &[u8; 64], a: u8, b: u8) -> u64 {
+    const PACK: u64 = 0x0102_0408_1020_4080;
+    let hits = block.map(|c| u8::from(c == a || c == b));
+    hits.chunks_exact(8).enumerate().fold(0u64, |m, (k, w)| {
+        let w = w.try_into().map_or(0, u64::from_le_bytes);
+        m | (w.wrapping_mul(PACK) >> 56) << (8 * k)
+    })
+}
+
+/// Parses the rows of one piece, writing row r of output column c into `out[c][r]`; returns the rows written.
+/// `first_line` is the file line number of the line before the piece's first one (a piece starts right after a
+/// line end); `target_of[col]` is the output column of each file column (`None`: ignored).
+///
+/// Cells are found from bitmasks of the separators, 64 bytes at a time, so where a cell starts never waits for the
+/// cell before it to be parsed: the processor works on several numbers at once.
 fn parse_chunk(
-    chunk: &str,
+    b: &[u8],
     first_line: usize,
     roles: &[Role],
     target_of: &[Option<usize>],
     names: &[&str],
     out: &mut [&mut [f64]],
 ) -> Result<usize, CsvError> {
-    let b = chunk.as_bytes();
-    let n = b.len();
     let ncols = roles.len();
-    let (mut p, mut line_no, mut row) = (0usize, first_line, 0usize);
-    while let Some(&c0) = b.get(p) {
-        // Empty line, or the empty remainder of the line before the piece.
-        if matches!(c0, b'\n' | b'\r') {
-            line_no += usize::from(c0 == b'\n');
-            p += 1;
-            continue;
-        }
-        let mut col = 0;
-        loop {
-            let target = target_of.get(col).copied().flatten();
-            let fast = target.and_then(|_| {
-                fast_number(b, p)
-                    .filter(|&(_, q)| matches!(b.get(q), Some(b',' | b'\n' | b'\r') | None))
-            });
-            let value = match fast {
-                Some((v, q)) => {
-                    p = q;
-                    Some(v)
+    let (mut line_no, mut row, mut col, mut start) = (first_line, 0usize, 0usize, 0usize);
+    let mut blocks = b.chunks_exact(64);
+    let mut offset = 0;
+    let tail_mask = |rest: &[u8], c: u8| {
+        rest.iter()
+            .enumerate()
+            .fold(0u64, |m, (i, &x)| m | u64::from(x == c) << i)
+    };
+    loop {
+        // Separators and line ends of the next 64 bytes.
+        let (mut seps, newlines) = match blocks.next().and_then(|w| <&[u8; 64]>::try_from(w).ok()) {
+            Some(w) => (byte_mask(w, b',', b'\n'), byte_mask(w, b'\n', b'\n')),
+            None => {
+                let rest = blocks.remainder();
+                let nl = tail_mask(rest, b'\n');
+                // A last line without a line end ends at the end of the piece.
+                let last = if b.last().is_some_and(|&c| c != b'\n') {
+                    1u64 << rest.len()
+                } else {
+                    0
+                };
+                (tail_mask(rest, b',') | nl | last, nl | last)
+            }
+        };
+        while seps != 0 {
+            let i = seps.trailing_zeros();
+            seps &= seps - 1;
+            let sep = offset + i as usize;
+            let eol = newlines >> i & 1 != 0;
+            let mut end = sep;
+            if eol {
+                end -= usize::from(end > start && b.get(end - 1) == Some(&b'\r'));
+                if col == 0 && end == start {
+                    // An empty line.
+                    line_no += 1;
+                    start = sep + 1;
+                    continue;
                 }
-                None => {
-                    // General path: the whole cell, trimmed, through `parse_f64`.
-                    let end = b
-                        .get(p..)
-                        .and_then(|r| r.iter().position(|&c| matches!(c, b',' | b'\n')))
-                        .map_or(n, |k| p + k);
-                    let cell = chunk.get(p..end).unwrap_or("").trim();
-                    p = end;
-                    match target {
-                        None => None,
-                        Some(_) => Some(parse_f64(cell).ok_or_else(|| CsvError::Cell {
-                            line: line_no,
-                            column: col + 1,
-                            name: names.get(col).unwrap_or(&"?").to_string(),
-                            what: format!("expected a number, found '{cell}'"),
-                        })?),
-                    }
+            }
+            if let Some(t) = target_of.get(col).copied().flatten() {
+                let value = match fast_number(b, start) {
+                    Some((v, q)) if q == end => v,
+                    _ => general_cell(b.get(start..end).unwrap_or(&[]), line_no + 1, col, names)?,
+                };
+                if let Some(slot) = out.get_mut(t).and_then(|c| c.get_mut(row)) {
+                    *slot = value;
                 }
-            };
-            if let (Some(v), Some(t)) = (value, target)
-                && let Some(slot) = out.get_mut(t).and_then(|c| c.get_mut(row))
-            {
-                *slot = v;
             }
-            col += 1;
-            if b.get(p) == Some(&b'\r') {
-                p += 1;
-            }
-            match b.get(p) {
-                Some(b',') => p += 1,
-                _ => break,
+            start = sep + 1;
+            if eol {
+                line_no += 1;
+                if col + 1 != ncols {
+                    return Err(CsvError::Width {
+                        line: line_no,
+                        expected: ncols,
+                        found: col + 1,
+                    });
+                }
+                row += 1;
+                col = 0;
+            } else {
+                col += 1;
             }
         }
-        if col != ncols {
-            return Err(CsvError::Width {
-                line: line_no,
-                expected: ncols,
-                found: col,
-            });
+        if offset + 64 > b.len() {
+            return Ok(row);
         }
-        row += 1;
-        // At '\n' (or the end).
-        p += 1;
-        line_no += 1;
+        offset += 64;
     }
-    Ok(row)
+}
+
+/// A cell the fast path refused: trimmed, through [`parse_f64`], or a positioned error.
+#[cold]
+fn general_cell(cell: &[u8], line: usize, col: usize, names: &[&str]) -> Result<f64, CsvError> {
+    let text = String::from_utf8_lossy(cell);
+    let text = text.trim();
+    parse_f64(text).ok_or_else(|| CsvError::Cell {
+        line,
+        column: col + 1,
+        name: names.get(col).unwrap_or(&"?").to_string(),
+        what: format!("expected a number, found '{text}'"),
+    })
+}
+
+/// Bytes read per block by [`Recording::parse_from`].
+pub const BLOCK_BYTES: usize = 16 << 20;
+
+/// Reads from `src` until `buf` holds `want` bytes or the input ends; returns whether it ended.
+fn fill<R: std::io::Read>(src: &mut R, buf: &mut Vec<u8>, want: usize) -> std::io::Result<bool> {
+    let missing = want.saturating_sub(buf.len());
+    let got = std::io::Read::read_to_end(&mut std::io::Read::take(src, missing as u64), buf)?;
+    Ok(got < missing)
+}
+
+/// The header in `buf`: its 1-based line number and (start, end) of its text without the line end; `None` when no
+/// line is complete yet (or, at the end of the input, none is non-blank).
+fn find_header(buf: &[u8], eof: bool) -> Option<(usize, (usize, usize))> {
+    let mut start = 0;
+    let mut line = 1;
+    while start < buf.len() {
+        let (end, complete) = match buf
+            .get(start..)
+            .and_then(|r| r.iter().position(|&c| c == b'\n'))
+        {
+            Some(i) => (start + i, true),
+            None => (buf.len(), eof),
+        };
+        if !complete {
+            return None;
+        }
+        let text = buf.get(start..end).unwrap_or(&[]);
+        if !text.iter().all(u8::is_ascii_whitespace) {
+            let trimmed = text.strip_suffix(b"\r").map_or(end, |t| start + t.len());
+            return Some((line, (start, trimmed)));
+        }
+        start = end + 1;
+        line += 1;
+    }
+    None
+}
+
+/// What the parser needs to know of the header.
+struct Layout<'a> {
+    roles: &'a [Role],
+    target_of: &'a [Option<usize>],
+    names: &'a [&'a str],
+}
+
+/// Parses whole lines `region` (whose first line follows file line `line_before`) in parallel pieces, appending
+/// their rows to `targets`; returns the file line number of its last line.
+fn parse_region(
+    region: &[u8],
+    line_before: usize,
+    layout: &Layout,
+    targets: &mut [Vec<f64>],
+) -> Result<usize, CsvError> {
+    let parts = (rayon::current_num_threads() * 4).max(1);
+    let mut pieces: Vec<&[u8]> = Vec::with_capacity(parts + 1);
+    let mut rest = region;
+    while !rest.is_empty() {
+        let target = (region.len() / parts).max(1 << 16).min(rest.len());
+        let cut = rest
+            .get(target..)
+            .and_then(|r| r.iter().position(|&c| c == b'\n'))
+            .map_or(rest.len(), |i| target + i + 1);
+        let (piece, tail) = rest.split_at(cut);
+        pieces.push(piece);
+        rest = tail;
+    }
+    // Line ends per piece (in parallel): the first line number of every piece, and room for its rows.
+    let newlines: Vec<usize> = pieces.par_iter().map(|p| count_newlines(p)).collect();
+    let mut first_lines = Vec::with_capacity(pieces.len());
+    let mut row_start = Vec::with_capacity(pieces.len() + 1);
+    let (mut line_no, mut rows) = (line_before, 0usize);
+    for (piece, &nl) in pieces.iter().zip(&newlines) {
+        first_lines.push(line_no);
+        row_start.push(rows);
+        rows += nl + usize::from(!piece.ends_with(b"\n"));
+        line_no += nl;
+    }
+    row_start.push(rows);
+    // Every piece writes its rows straight into its own slices of the columns.
+    let base = targets.first().map_or(0, Vec::len);
+    let mut views: Vec<Vec<&mut [f64]>> = (0..pieces.len())
+        .map(|_| Vec::with_capacity(targets.len()))
+        .collect();
+    for target in targets.iter_mut() {
+        target.resize(base + rows, 0.0);
+        let mut rest: &mut [f64] = target.get_mut(base..).unwrap_or_default();
+        for (view, w) in views.iter_mut().zip(row_start.windows(2)) {
+            let (mine, tail) = rest.split_at_mut(w[1] - w[0]);
+            view.push(mine);
+            rest = tail;
+        }
+    }
+    let written: Vec<Result<usize, CsvError>> = pieces
+        .par_iter()
+        .zip(views.par_iter_mut())
+        .zip(first_lines.par_iter())
+        .map(|((piece, view), &first)| {
+            parse_chunk(
+                piece,
+                first,
+                layout.roles,
+                layout.target_of,
+                layout.names,
+                view,
+            )
+        })
+        .collect();
+    drop(views);
+    // Pieces with empty lines wrote fewer rows than they had room for: close the gaps.
+    let mut counts = Vec::with_capacity(written.len());
+    for w in written {
+        counts.push(w?);
+    }
+    let total: usize = counts.iter().sum();
+    if total != rows {
+        for target in targets.iter_mut() {
+            let mut to = base;
+            for (w, &c) in row_start.windows(2).zip(&counts) {
+                target.copy_within(base + w[0]..base + w[0] + c, to);
+                to += c;
+            }
+            target.truncate(base + total);
+        }
+    }
+    Ok(line_no)
 }
 
 /// What a column of the file is.
@@ -368,15 +601,65 @@ impl Recording {
 
     /// Parses CSV text; returns the recording and warnings (ignored columns).
     pub fn parse(text: &str) -> Result<(Recording, Vec<String>), CsvError> {
-        let mut lines = text
-            .lines()
-            .enumerate()
-            .filter(|(_, l)| !l.trim().is_empty());
-        let (header_index, header) = lines
-            .next()
-            .ok_or_else(|| CsvError::Header("the file is empty".into()))?;
-        let header_line = header_index + 1;
-        let names: Vec<&str> = header.split(',').map(str::trim).collect();
+        Self::parse_from(text.as_bytes(), text.len() as u64, "<text>")
+    }
+
+    /// Reads a CSV file, streaming it in blocks (see [`Self::parse_from`]).
+    pub fn read(path: &Path) -> Result<(Recording, Vec<String>), CsvError> {
+        let name = path.display().to_string();
+        let io = |source| CsvError::Io {
+            path: name.clone(),
+            source,
+        };
+        let file = std::fs::File::open(path).map_err(io)?;
+        let size = file.metadata().map_or(0, |m| m.len());
+        Self::parse_from(file, size, &name)
+    }
+
+    /// Parses CSV from `src` (`size_hint` bytes expected, for reserving the columns; `name` for I/O errors).
+    ///
+    /// The text is read in blocks of [`BLOCK_BYTES`] cut at line ends; each block is cut into pieces parsed in
+    /// parallel straight into their rows of the columns, while the next block is read. Only the header and
+    /// cells the fast path refuses need to be UTF-8 (a cell that is not gets a positioned error), so the body is
+    /// never validated or copied as a whole, and memory holds one block and the columns.
+    pub fn parse_from(
+        src: impl std::io::Read + Send,
+        size_hint: u64,
+        name: &str,
+    ) -> Result<(Recording, Vec<String>), CsvError> {
+        Self::parse_blocks(src, size_hint, name, BLOCK_BYTES)
+    }
+
+    /// [`Self::parse_from`] with blocks of `block` bytes.
+    fn parse_blocks(
+        mut src: impl std::io::Read + Send,
+        size_hint: u64,
+        name: &str,
+        block: usize,
+    ) -> Result<(Recording, Vec<String>), CsvError> {
+        let block = block.max(1);
+        let io = |source| CsvError::Io {
+            path: name.to_string(),
+            source,
+        };
+        let mut cur = Vec::new();
+        let mut eof = fill(&mut src, &mut cur, block).map_err(io)?;
+        // The header: the first line that is not blank, complete in the buffer.
+        let (header_line, header_end) = loop {
+            match find_header(&cur, eof) {
+                Some(found) => break found,
+                None if !eof => {
+                    let want = 2 * cur.len();
+                    eof = fill(&mut src, &mut cur, want).map_err(io)?;
+                }
+                None => return Err(CsvError::Header("the file is empty".into())),
+            }
+        };
+        let (line_start, line_end) = header_end;
+        let header = std::str::from_utf8(cur.get(line_start..line_end).unwrap_or(&[]))
+            .map_err(|_| CsvError::Header("not UTF-8 text".into()))?;
+        let names: Vec<String> = header.split(',').map(|n| n.trim().to_string()).collect();
+        let names: Vec<&str> = names.iter().map(String::as_str).collect();
         let mut warnings = Vec::new();
         let mut roles = Vec::with_capacity(names.len());
         let mut columns: Vec<Column> = Vec::new();
@@ -426,49 +709,6 @@ impl Recording {
         if columns.is_empty() {
             return Err(CsvError::Header("no sensor columns (gSSx … aSSz)".into()));
         }
-        // The body is cut into chunks at line ends and parsed in parallel; each chunk knows its first line number,
-        // so errors still point at the right line.
-        let body_start = header.as_ptr() as usize - text.as_ptr() as usize + header.len();
-        let body = text.get(body_start..).unwrap_or("");
-        let parts = (rayon::current_num_threads() * 4).max(1);
-        let mut pieces: Vec<&str> = Vec::with_capacity(parts + 1);
-        let mut rest = body;
-        while !rest.is_empty() {
-            let target = (body.len() / parts).max(1 << 16).min(rest.len());
-            let cut = rest
-                .get(target..)
-                .and_then(|r| r.find('\n'))
-                .map_or(rest.len(), |i| target + i + 1);
-            let (piece, tail) = rest.split_at(cut);
-            pieces.push(piece);
-            rest = tail;
-        }
-        // Line ends per piece (in parallel): the first line number of every piece, and room for its rows.
-        let newlines: Vec<usize> = pieces.par_iter().map(|p| count_newlines(p)).collect();
-        let mut first_lines = Vec::with_capacity(pieces.len());
-        let mut row_start = Vec::with_capacity(pieces.len() + 1);
-        let (mut line_no, mut rows) = (header_line, 0usize);
-        for (piece, &nl) in pieces.iter().zip(&newlines) {
-            first_lines.push(line_no);
-            row_start.push(rows);
-            rows += nl + usize::from(!piece.ends_with('\n'));
-            line_no += nl;
-        }
-        row_start.push(rows);
-        // Every piece writes its rows straight into its own slices of the final columns.
-        let n_targets = 1 + usize::from(has_temp) + columns.len();
-        let mut targets: Vec<Vec<f64>> = (0..n_targets).map(|_| vec![0.0; rows]).collect();
-        let mut views: Vec<Vec<&mut [f64]>> = (0..pieces.len())
-            .map(|_| Vec::with_capacity(n_targets))
-            .collect();
-        for target in targets.iter_mut() {
-            let mut rest: &mut [f64] = target;
-            for (view, w) in views.iter_mut().zip(row_start.windows(2)) {
-                let (mine, tail) = rest.split_at_mut(w[1] - w[0]);
-                view.push(mine);
-                rest = tail;
-            }
-        }
         let target_of: Vec<Option<usize>> = roles
             .iter()
             .map(|r| match r {
@@ -478,30 +718,67 @@ impl Recording {
                 Role::Ignored => None,
             })
             .collect();
-        let written: Vec<Result<usize, CsvError>> = pieces
-            .par_iter()
-            .zip(views.par_iter_mut())
-            .zip(first_lines.par_iter())
-            .map(|((piece, view), &first)| {
-                parse_chunk(piece, first, &roles, &target_of, &names, view)
-            })
-            .collect();
-        drop(views);
-        // Pieces with empty lines wrote fewer rows than they had room for: close the gaps.
-        let mut counts = Vec::with_capacity(written.len());
-        for w in written {
-            counts.push(w?);
-        }
-        let total: usize = counts.iter().sum();
-        if total != rows {
-            for target in targets.iter_mut() {
-                let mut to = 0;
-                for (w, &c) in row_start.windows(2).zip(&counts) {
-                    target.copy_within(w[0]..w[0] + c, to);
-                    to += c;
+        let layout = Layout {
+            roles: &roles,
+            target_of: &target_of,
+            names: &names,
+        };
+        let n_targets = 1 + usize::from(has_temp) + columns.len();
+        let mut targets: Vec<Vec<f64>> = vec![Vec::new(); n_targets];
+        // The header line ends at `line_end` (before any "\r\n"); the body starts after its '\n'.
+        let mut body_start = cur
+            .get(line_end..)
+            .and_then(|r| r.iter().position(|&c| c == b'\n'))
+            .map_or(cur.len(), |i| line_end + i + 1);
+        let mut line_no = header_line;
+        let mut next = Vec::new();
+        let mut first = true;
+        loop {
+            let body = cur.get(body_start..).unwrap_or(&[]);
+            // Whole lines only, unless this is the end of the text.
+            let end = if eof {
+                body.len()
+            } else {
+                match body.iter().rposition(|&c| c == b'\n') {
+                    Some(i) => i + 1,
+                    None => {
+                        // Not one whole line in the buffer: read more.
+                        let want = 2 * cur.len().max(block);
+                        eof = fill(&mut src, &mut cur, want).map_err(io)?;
+                        continue;
+                    }
                 }
-                target.truncate(total);
+            };
+            let (region, rest) = body.split_at(end);
+            if first {
+                // Room for all rows, estimated from the first block's bytes per line.
+                first = false;
+                let lines = count_newlines(region).max(1);
+                let rows =
+                    (size_hint as f64 * lines as f64 / region.len().max(1) as f64 * 1.01) as usize;
+                for t in &mut targets {
+                    t.reserve(rows.saturating_sub(t.len()));
+                }
             }
+            next.clear();
+            next.extend_from_slice(rest);
+            let (parsed, read) = rayon::join(
+                || parse_region(region, line_no, &layout, &mut targets),
+                || {
+                    if eof {
+                        Ok(true)
+                    } else {
+                        fill(&mut src, &mut next, block)
+                    }
+                },
+            );
+            line_no = parsed?;
+            if eof {
+                break;
+            }
+            eof = read.map_err(io)?;
+            std::mem::swap(&mut cur, &mut next);
+            body_start = 0;
         }
         let mut targets = targets.into_iter();
         let mut rec = Recording {
@@ -515,15 +792,6 @@ impl Recording {
         columns.sort_by_key(|c| (c.kind, c.group, c.axis));
         rec.columns = columns;
         Ok((rec, warnings))
-    }
-
-    /// Reads a CSV file.
-    pub fn read(path: &Path) -> Result<(Recording, Vec<String>), CsvError> {
-        let text = std::fs::read_to_string(path).map_err(|source| CsvError::Io {
-            path: path.display().to_string(),
-            source,
-        })?;
-        Self::parse(&text)
     }
 
     /// Writes the canonical CSV (gyro columns of a group, then its accel columns; groups in order). Time in Rust's
@@ -689,6 +957,113 @@ mod tests {
             out.push(' ');
         }
         assert_eq!(out, "0.5 0 1 -0.02839027 0 ");
+    }
+
+    /// Reading in blocks of any size, from a source that returns short reads, gives the same recording and the same
+    /// error positions as parsing the whole text.
+    #[test]
+    fn any_block_size_gives_the_same_result() {
+        struct Trickle<'a>(&'a [u8], usize);
+        impl std::io::Read for Trickle<'_> {
+            fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+                self.1 = self.1 % 5 + 1;
+                let n = self.1.min(buf.len()).min(self.0.len());
+                buf[..n].copy_from_slice(&self.0[..n]);
+                self.0 = &self.0[n..];
+                Ok(n)
+            }
+        }
+        let mut text = String::from("\n \nt,temp_c,g00x,a00z,zz\r\n");
+        for i in 0..300 {
+            text.push_str(&format!(
+                "{},{},-0.{:09},{}.5,x\n",
+                i,
+                20 + i % 3,
+                i * 7919,
+                i
+            ));
+            if i % 37 == 0 {
+                text.push_str("\r\n\n");
+            }
+        }
+        text.push_str("300,21,1,2,y");
+        let whole = Recording::parse(&text).unwrap();
+        assert_eq!(whole.0.len(), 301);
+        let bad = text.replacen("\n150,", "\n150x,", 1);
+        let want = Recording::parse(&bad).unwrap_err().to_string();
+        assert!(want.starts_with("line 164, column 1 (t)"), "{want}");
+        for block in [1, 2, 7, 64, 65, 200, 1 << 20] {
+            let got = Recording::parse_blocks(Trickle(text.as_bytes(), 0), 0, "t", block).unwrap();
+            assert_eq!(got, whole, "block {block}");
+            let e = Recording::parse_blocks(Trickle(bad.as_bytes(), 0), 9, "t", block).unwrap_err();
+            assert_eq!(e.to_string(), want, "block {block}");
+        }
+    }
+
+    /// The eight-digits-at-a-time path (a number followed by ≥ 24 bytes) and the digit-at-a-time path (near the
+    /// end of the text) give the same value and end for every kind of cell.
+    #[test]
+    fn swar_and_scalar_number_paths_agree() {
+        let mut cases: Vec<String> = [
+            "0",
+            "-0",
+            "7",
+            "-1.5",
+            "0.028390270",
+            "-0.000833333",
+            "1234567",
+            "12345678",
+            "0.12345678",
+            "0.123456789",
+            "1.1234567890123456",
+            "1.123456789012345",
+            "-9.999999999",
+            "5.",
+            ".5",
+            "-",
+            ".",
+            "",
+            "1e-3",
+            "9007199254740993",
+            "900719925474099.3",
+            "12.34.5",
+            "0x1",
+        ]
+        .iter()
+        .map(|c| c.to_string())
+        .collect();
+        let mut s = 0x9E37_79B9_7F4A_7C15u64;
+        for _ in 0..20_000 {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            let (int, frac) = ((s % 100_000_000).to_string(), (s >> 27).to_string());
+            let (ni, nf) = ((s >> 40) as usize % 9, (s >> 44) as usize % 18);
+            let sign = if s >> 63 == 1 { "-" } else { "" };
+            cases.push(format!(
+                "{sign}{}.{}",
+                &int[..ni.min(int.len())],
+                &frac[..nf.min(frac.len())]
+            ));
+        }
+        for c in &cases {
+            for tail in [",", "\n", "\r\n", ",,", "x", "/", ":"] {
+                let short = format!("{c}{tail}");
+                let long = format!("{short}{}", "0123456789:/-. ,".repeat(2));
+                let (a, b) = (
+                    fast_number(short.as_bytes(), 0),
+                    fast_number(long.as_bytes(), 0),
+                );
+                assert_eq!(
+                    a.map(|(v, e)| (v.to_bits(), e)),
+                    b.map(|(v, e)| (v.to_bits(), e)),
+                    "{short:?}"
+                );
+                if let Some((v, e)) = b {
+                    assert_eq!(Some(v), c[..e].parse::<f64>().ok(), "{c}");
+                }
+            }
+        }
     }
 
     proptest::proptest! {
