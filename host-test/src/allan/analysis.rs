@@ -100,15 +100,18 @@ impl Analyzer {
             .filter(|m| m.is_power_of_two())
             .map(|m| m.trailing_zeros() as usize)
             .max();
+        // Level 0 is `y` itself and stays empty here (the noise identification falls back to `y`).
         self.pyramid.resize_with(top.map_or(0, |t| t + 1), Vec::new);
         for k in 0..self.pyramid.len() {
             let (lower, upper) = self.pyramid.split_at_mut(k);
             let level = &mut upper[0];
             level.clear();
-            match lower.last() {
-                None => level.extend_from_slice(y),
-                Some(prev) => level.extend(prev.chunks_exact(2).map(|p| 0.5 * (p[0] + p[1]))),
-            }
+            let prev = match (k, lower.last()) {
+                (0, _) | (_, None) => continue,
+                (1, _) => y,
+                (_, Some(prev)) => prev.as_slice(),
+            };
+            level.extend(prev.chunks_exact(2).map(|p| 0.5 * (p[0] + p[1])));
         }
         let carry_limit = 2 * kind.stable32_stop_ratio();
         let mut out = Vec::with_capacity(ms.len());

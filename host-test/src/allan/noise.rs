@@ -191,7 +191,12 @@ pub(crate) fn acf_noise_id_pyramid(
 /// Non-overlapping block means of `m` samples (trailing partial block dropped).
 fn block_averages(y: &[f64], m: usize, out: &mut Vec<f64>) {
     out.clear();
-    out.extend(y.chunks_exact(m).map(|c| c.iter().sum::<f64>() / m as f64));
+    if m == 1 {
+        // x / 1 = x: a copy, not N divisions.
+        out.extend_from_slice(y);
+    } else {
+        out.extend(y.chunks_exact(m).map(|c| c.iter().sum::<f64>() / m as f64));
+    }
 }
 
 /// Removes the least-squares straight line `a + b·t`, `t = 0, 1, …`.
