@@ -213,13 +213,47 @@ impl AllanAccumulator {
             return;
         };
         let step = Step::new(index);
-        for (acc, &x) in accs.iter_mut().zip(xs) {
-            if acc.samples == index && index < MAX_SAMPLES {
-                acc.samples = index + 1;
-                acc.push_levels(x, step);
-            } else {
+        if index < MAX_SAMPLES && accs.iter().all(|a| a.samples == index) {
+            // One sample in two touches only level 0, one in four levels 0 and 1, …: those depths get a loop
+            // over the channels with the levels unrolled (the same arithmetic as `push_levels`).
+            match step.depth {
+                1 => Self::push_all::<1>(accs, xs, step),
+                2 => Self::push_all::<2>(accs, xs, step),
+                3 => Self::push_all::<3>(accs, xs, step),
+                _ => {
+                    for (acc, &x) in accs.iter_mut().zip(xs) {
+                        acc.samples = index + 1;
+                        acc.push_levels(x, step);
+                    }
+                }
+            }
+        } else {
+            for (acc, &x) in accs.iter_mut().zip(xs) {
                 acc.push(x);
             }
+        }
+    }
+
+    /// `push_levels` of every channel for a step of depth `D` (every accumulator holds `samples` < `MAX_SAMPLES`).
+    #[inline(always)]
+    fn push_all<const D: usize>(accs: &mut [Self], xs: &[i32], step: Step) {
+        for (acc, &x) in accs.iter_mut().zip(xs) {
+            acc.samples += 1;
+            let Some((levels, _)) = acc.levels.split_first_chunk_mut::<D>() else {
+                continue;
+            };
+            let Some((last, odd)) = levels.split_last_mut() else {
+                continue;
+            };
+            let mut block = i64::from(x);
+            for level in odd {
+                level.sum_sq.add_square(block - level.prev);
+                block += core::mem::replace(&mut level.prev, block);
+            }
+            if step.last_has_prev {
+                last.sum_sq.add_square(block - last.prev);
+            }
+            last.prev = block;
         }
     }
 
