@@ -138,6 +138,27 @@ impl Level {
     };
 }
 
+/// Adds sample `x` to `levels` = the levels its step completes (the last one differenced only if
+/// `last_has_prev`). Inlined with a constant length, the loop unrolls.
+#[inline(always)]
+fn push_into(levels: &mut [Level], x: i32, last_has_prev: bool) {
+    let () = DIFF_FITS_I64;
+    let Some((last, odd)) = levels.split_last_mut() else {
+        return;
+    };
+    let mut block = i64::from(x);
+    for level in odd {
+        // |block|, |prev| ≤ 2^(31+k): |d| ≤ 2^(32+k) < 2⁶³ (`DIFF_FITS_I64`).
+        level.sum_sq.add_square(block - level.prev);
+        // An odd block and its predecessor form the next level's block.
+        block += core::mem::replace(&mut level.prev, block);
+    }
+    if last_has_prev {
+        last.sum_sq.add_square(block - last.prev);
+    }
+    last.prev = block;
+}
+
 /// Streaming non-overlapping octave Allan accumulator of one channel (see module docs).
 #[derive(Clone, Debug)]
 pub struct AllanAccumulator {
@@ -184,25 +205,9 @@ impl AllanAccumulator {
     /// Adds a sample whose [`Step`] is `step` (`samples` is already counted).
     #[inline(always)]
     fn push_levels(&mut self, x: i32, step: Step) {
-        let () = DIFF_FITS_I64;
-        let Some((last, odd)) = self
-            .levels
-            .get_mut(..step.depth)
-            .and_then(<[Level]>::split_last_mut)
-        else {
-            return;
-        };
-        let mut block = i64::from(x);
-        for level in odd {
-            // |block|, |prev| ≤ 2^(31+k): |d| ≤ 2^(32+k) < 2⁶³ (`DIFF_FITS_I64`).
-            level.sum_sq.add_square(block - level.prev);
-            // An odd block and its predecessor form the next level's block.
-            block += core::mem::replace(&mut level.prev, block);
+        if let Some(levels) = self.levels.get_mut(..step.depth) {
+            push_into(levels, x, step.last_has_prev);
         }
-        if step.last_has_prev {
-            last.sum_sq.add_square(block - last.prev);
-        }
-        last.prev = block;
     }
 
     /// [`Self::push`] of `xs[c]` into `accs[c]` for every channel c (extra items of either are left alone);
@@ -239,21 +244,9 @@ impl AllanAccumulator {
     fn push_all<const D: usize>(accs: &mut [Self], xs: &[i32], step: Step) {
         for (acc, &x) in accs.iter_mut().zip(xs) {
             acc.samples += 1;
-            let Some((levels, _)) = acc.levels.split_first_chunk_mut::<D>() else {
-                continue;
-            };
-            let Some((last, odd)) = levels.split_last_mut() else {
-                continue;
-            };
-            let mut block = i64::from(x);
-            for level in odd {
-                level.sum_sq.add_square(block - level.prev);
-                block += core::mem::replace(&mut level.prev, block);
+            if let Some((levels, _)) = acc.levels.split_first_chunk_mut::<D>() {
+                push_into(levels, x, step.last_has_prev);
             }
-            if step.last_has_prev {
-                last.sum_sq.add_square(block - last.prev);
-            }
-            last.prev = block;
         }
     }
 

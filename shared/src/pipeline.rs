@@ -397,9 +397,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 .iter_mut()
                 .zip(self.fusion.fault_counts(g).unwrap_or_default())
             {
-                sum.saturated = sum.saturated.wrapping_add(c.saturated);
-                sum.stuck = sum.stuck.wrapping_add(c.stuck);
-                sum.outlier = sum.outlier.wrapping_add(c.outlier);
+                sum.add(&c);
             }
         }
         let fusion = self.fusion.config();

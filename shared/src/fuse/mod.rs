@@ -101,6 +101,16 @@ impl SensorFaults {
         self.stuck |= other.stuck;
         self.outlier |= other.outlier;
     }
+
+    /// This sample's faults of `group` as counts (0 or 1 each).
+    pub fn counts_of(&self, group: u32) -> FaultCounts {
+        let bit = |mask: u32| mask.checked_shr(group).unwrap_or(0) & 1;
+        FaultCounts {
+            saturated: bit(self.saturated),
+            stuck: bit(self.stuck),
+            outlier: bit(self.outlier),
+        }
+    }
 }
 
 /// Health of one fused sample: which groups were left out, per sensor kind.
@@ -151,6 +161,15 @@ pub struct FaultCounts {
     pub stuck: u32,
     /// Samples with at least one outlier axis.
     pub outlier: u32,
+}
+
+impl FaultCounts {
+    /// Adds `other`, each counter modulo 2³².
+    pub fn add(&mut self, other: &Self) {
+        self.saturated = self.saturated.wrapping_add(other.saturated);
+        self.stuck = self.stuck.wrapping_add(other.stuck);
+        self.outlier = self.outlier.wrapping_add(other.outlier);
+    }
 }
 
 /// Noise estimator of one sensor axis.
@@ -584,10 +603,7 @@ impl<const G: usize> Fusion<G> {
                     .get_mut(g as usize)
                     .and_then(|c| c.get_mut(kind))
                 {
-                    let bump = |x: &mut u32, mask: u32| *x = x.wrapping_add((mask >> g) & 1);
-                    bump(&mut c.saturated, h.saturated);
-                    bump(&mut c.stuck, h.stuck);
-                    bump(&mut c.outlier, h.outlier);
+                    c.add(&h.counts_of(g));
                 }
             }
         }

@@ -262,3 +262,37 @@ proptest::proptest! {
         }
     }
 }
+
+#[test]
+fn fault_counts_add_per_group_bits_and_wrap() {
+    let h = SensorFaults {
+        saturated: 1 << 31,
+        stuck: 0b101,
+        outlier: 0b100,
+    };
+    assert_eq!(
+        h.counts_of(2),
+        FaultCounts {
+            saturated: 0,
+            stuck: 1,
+            outlier: 1
+        }
+    );
+    assert_eq!(h.counts_of(31).saturated, 1);
+    assert_eq!(h.counts_of(32), FaultCounts::default());
+    let mut c = FaultCounts {
+        saturated: u32::MAX,
+        stuck: 7,
+        outlier: 0,
+    };
+    c.add(&h.counts_of(31));
+    c.add(&h.counts_of(0));
+    assert_eq!(
+        c,
+        FaultCounts {
+            saturated: 0,
+            stuck: 8,
+            outlier: 0
+        }
+    );
+}
