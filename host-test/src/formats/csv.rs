@@ -1074,7 +1074,8 @@ mod tests {
         /// Random edits of a valid file (and random bytes) give a recording or a positioned error, never a panic.
         #[test]
         fn mangled_files_never_panic(edits in proptest::collection::vec((0usize..400, proptest::prelude::any::<u8>()), 0..12),
-                                     junk in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..200)) {
+                                     junk in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..200),
+                                     block in 1usize..80) {
             let mut text = String::from("t,temp_c,g00x,a00z,zz\n");
             for i in 0..12 {
                 text.push_str(&format!("{},{}.5,-0.{}25,{}e-3,x\n", i, 20 + i, i, i));
@@ -1090,6 +1091,16 @@ mod tests {
                 let _ = Recording::parse(t);
             }
             let _ = Recording::parse(&String::from_utf8_lossy(&junk));
+            // Raw bytes (not UTF-8 either), whole and in small blocks: the same recording or the same error.
+            for b in [&bytes, &junk] {
+                let show = |r: Result<(Recording, Vec<String>), CsvError>| match r {
+                    Ok(v) => format!("{v:?}"),
+                    Err(e) => e.to_string(),
+                };
+                let whole = show(Recording::parse_blocks(&b[..], b.len() as u64, "p", BLOCK_BYTES));
+                let small = show(Recording::parse_blocks(&b[..], 7, "p", block));
+                proptest::prop_assert_eq!(whole, small);
+            }
         }
     }
 
