@@ -140,8 +140,13 @@ pub enum CsvError {
         source: std::io::Error,
     },
     /// Header problems.
-    #[error("line 1 (header): {0}")]
-    Header(String),
+    #[error("line {line} (header): {what}")]
+    Header {
+        /// 1-based line of the header (blank lines may come before it).
+        line: usize,
+        /// What is wrong.
+        what: String,
+    },
     /// A row problem.
     #[error("line {line}, column {column} ({name}): {what}")]
     Cell {
@@ -647,12 +652,22 @@ impl Recording {
                     let want = 2 * cur.len();
                     eof = fill(&mut src, &mut cur, want).map_err(io)?;
                 }
-                None => return Err(CsvError::Header("the file is empty".into())),
+                None => {
+                    return Err(CsvError::Header {
+                        line: 1,
+                        what: "the file is empty".into(),
+                    });
+                }
             }
         };
         let (line_start, line_end) = header_end;
-        let header = std::str::from_utf8(cur.get(line_start..line_end).unwrap_or(&[]))
-            .map_err(|_| CsvError::Header("not UTF-8 text".into()))?;
+        let header =
+            std::str::from_utf8(cur.get(line_start..line_end).unwrap_or(&[])).map_err(|_| {
+                CsvError::Header {
+                    line: header_line,
+                    what: "not UTF-8 text".into(),
+                }
+            })?;
         let names: Vec<String> = header.split(',').map(|n| n.trim().to_string()).collect();
         let names: Vec<&str> = names.iter().map(String::as_str).collect();
         let mut warnings = Vec::new();
@@ -670,7 +685,10 @@ impl Recording {
                     Role::Temp
                 }
                 "t" | "temp_c" => {
-                    return Err(CsvError::Header(format!("column '{name}' appears twice")));
+                    return Err(CsvError::Header {
+                        line: header_line,
+                        what: format!("column '{name}' appears twice"),
+                    });
                 }
                 _ => match parse_column_name(name) {
                     Some((kind, group, axis)) => {
@@ -678,7 +696,10 @@ impl Recording {
                             .iter()
                             .any(|c| c.kind == kind && c.group == group && c.axis == axis)
                         {
-                            return Err(CsvError::Header(format!("column '{name}' appears twice")));
+                            return Err(CsvError::Header {
+                                line: header_line,
+                                what: format!("column '{name}' appears twice"),
+                            });
                         }
                         columns.push(Column {
                             group,
@@ -699,10 +720,16 @@ impl Recording {
             roles.push(role);
         }
         if !has_t {
-            return Err(CsvError::Header("no 't' column (time in seconds)".into()));
+            return Err(CsvError::Header {
+                line: header_line,
+                what: "no 't' column (time in seconds)".into(),
+            });
         }
         if columns.is_empty() {
-            return Err(CsvError::Header("no sensor columns (gSSx … aSSz)".into()));
+            return Err(CsvError::Header {
+                line: header_line,
+                what: "no sensor columns (gSSx … aSSz)".into(),
+            });
         }
         let target_of: Vec<Option<usize>> = roles
             .iter()
@@ -1102,6 +1129,16 @@ mod tests {
                 proptest::prop_assert_eq!(whole, small);
             }
         }
+    }
+
+    #[test]
+    fn header_errors_give_the_header_line() {
+        let e = Recording::parse("\n \nt,g00x,g00x\n0,1,2\n")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(e, "line 3 (header): column 'g00x' appears twice");
+        let e = Recording::parse("\n\n").unwrap_err().to_string();
+        assert_eq!(e, "line 1 (header): the file is empty");
     }
 
     #[test]
