@@ -27,34 +27,11 @@ pub fn host_pipeline(config: PipelineConfig, cal: CalibrationTable<GROUPS>) -> H
 }
 
 /// `n` frames of the nominal board at rest (1 g along z) with ±20 counts of uniform noise on every channel, from a
-/// fixed xorshift generator: the stream the throughput benchmark and the profiling example feed to the core.
+/// fixed xorshift generator (`shared::bench::BenchFrames`): the stream the throughput benchmark, the profiling example
+/// and the Cortex-M4 instruction counts (`mcu-bench/`) feed to the core.
 pub fn synthetic_frames(n: usize) -> Vec<u8> {
-    use shared::wire::FrameRepr;
-    use shared::wire::frame::RAW_PER_GROUP;
-    let codes = shared::calib::board::nominal_codes([0.0; 3], [0.0, 0.0, -1.0]);
-    let mut s = 0x1234_5678_9abc_def0u64;
-    let mut out = Vec::with_capacity(n * shared::wire::frame::FRAME_LEN);
-    for i in 0..n {
-        let mut raw = [[0u16; RAW_PER_GROUP]; GROUPS];
-        for g in raw.iter_mut() {
-            for (c, x) in g.iter_mut().zip(&codes) {
-                s ^= s << 13;
-                s ^= s >> 7;
-                s ^= s << 17;
-                *c = (*x as i64 + (s % 41) as i64 - 20) as u16;
-            }
-        }
-        out.extend_from_slice(
-            &FrameRepr {
-                seq: i as u16,
-                decimation: 15,
-                temp_cdeg: Some(2000),
-                raw,
-            }
-            .to_bytes(),
-        );
-    }
-    out
+    let mut frames = shared::bench::BenchFrames::new();
+    (0..n).flat_map(|_| frames.next_bytes()).collect()
 }
 
 /// Replay parameters.

@@ -8,6 +8,7 @@
 #![deny(missing_docs)]
 
 pub mod allan;
+pub mod bench;
 pub mod bus;
 pub mod calib;
 pub mod crc;

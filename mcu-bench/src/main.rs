@@ -1,0 +1,162 @@
+//! Instruction counts of the flight core on an emulated Cortex-M4: `cd mcu-bench && cargo run --release` (needs
+//! `qemu-system-arm`). QEMU's mps2-an386 runs the same `shared::Pipeline` as the firmware, built with the firmware's
+//! profile, over the benchmark frame stream of the host (`shared::bench::BenchFrames`). Under `-icount shift=3` the
+//! 25 MHz SysTick advances once per 5 instructions, so the counts are exact and repeatable. They are instructions,
+//! not cycles: an STM32F405 at 168 MHz needs at least as many cycles (loads, multiplies, taken branches and flash
+//! wait states cost more than one).
+#![no_std]
+#![no_main]
+
+use cortex_m::peripheral::SYST;
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m_rt::entry;
+use cortex_m_semihosting::{debug, hprintln};
+use shared::bench::BenchFrames;
+use shared::fuse::FusionMode;
+use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
+use shared::wire::frame::FRAME_LEN;
+
+/// Instructions per SysTick tick: `-icount shift=3` = 8 ns per instruction, SysTick at 25 MHz = 40 ns per tick.
+const INSTRUCTIONS_PER_TICK: u64 = 5;
+/// SysTick is a 24-bit down counter.
+const SYST_MASK: u32 = 0x00FF_FFFF;
+/// Frames per timed batch (one output interval of the default configuration).
+const BATCH: usize = 32;
+/// Frames before timing starts: the noise estimates settle after 1024 and the weights are then in use.
+const WARMUP_FRAMES: usize = 2048;
+/// Timed batches per configuration.
+const BATCHES: usize = 64;
+/// The flight MCU's core clock (STM32F405 at its maximum).
+const MCU_HZ: f64 = 168e6;
+
+#[entry]
+fn main() -> ! {
+    let Some(mut core) = cortex_m::Peripherals::take() else {
+        exit(false);
+    };
+    core.SYST.set_clock_source(SystClkSource::Core);
+    core.SYST.set_reload(SYST_MASK);
+    core.SYST.clear_current();
+    core.SYST.enable_counter();
+    // The tick-to-instruction scale, checked on a million `nop`s (the loop around them adds ≈ 0.3 %).
+    const NOPS: u64 = 1_000_000;
+    let measured = ticks_between(|| {
+        for _ in 0..NOPS / 1000 {
+            // SAFETY: 1000 `nop`s: no memory, no registers, no flags.
+            unsafe {
+                core::arch::asm!(
+                    ".rept 1000",
+                    "nop",
+                    ".endr",
+                    options(nomem, nostack, preserves_flags)
+                )
+            };
+        }
+    }) * INSTRUCTIONS_PER_TICK;
+    hprintln!(
+        "scale check: {} nops counted as {} instructions",
+        NOPS,
+        measured
+    );
+    if measured.abs_diff(NOPS) > NOPS / 100 {
+        hprintln!(
+            "SysTick does not count {} instructions per tick: is -icount shift=3 set?",
+            INSTRUCTIONS_PER_TICK
+        );
+        exit(false);
+    }
+    let Some(bank) = cortex_m::singleton!(: AllanBank = AllanBank::new()) else {
+        exit(false);
+    };
+    let paper = {
+        let mut c = PipelineConfig::DEFAULT;
+        c.fusion.mode = FusionMode::Equal;
+        c.fusion.robust = false;
+        c
+    };
+    for (name, config) in [
+        ("default (weighted, robust)", PipelineConfig::DEFAULT),
+        ("seed paper (equal mean, no exclusion)", paper),
+    ] {
+        count(name, config, bank);
+    }
+    exit(true)
+}
+
+/// Runs `config` over the benchmark stream and reports instructions per frame.
+fn count(name: &str, config: PipelineConfig, bank: &mut AllanBank) {
+    let mut pipeline = Pipeline::new(config, &mut *bank);
+    let mut frames = BenchFrames::new();
+    let mut batch = [0u8; FRAME_LEN * BATCH];
+    let run = |pipeline: &mut Pipeline<&mut AllanBank>, batch: &[u8]| {
+        let mut input = batch;
+        while !input.is_empty() {
+            pipeline.push_link(&mut input);
+            while pipeline.poll().is_some() {}
+        }
+    };
+    let mut fill = |batch: &mut [u8]| {
+        for frame in batch.chunks_exact_mut(FRAME_LEN) {
+            frame.copy_from_slice(&frames.next_bytes());
+        }
+    };
+    for _ in 0..WARMUP_FRAMES / BATCH {
+        fill(&mut batch);
+        run(&mut pipeline, &batch);
+    }
+    // What two SysTick reads cost, taken off every batch.
+    let overhead = ticks_between(|| {});
+    let (mut min, mut max, mut total) = (u64::MAX, 0, 0);
+    for _ in 0..BATCHES {
+        fill(&mut batch);
+        let t = ticks_between(|| run(&mut pipeline, &batch)).saturating_sub(overhead);
+        let per_frame = t * INSTRUCTIONS_PER_TICK / BATCH as u64;
+        min = min.min(per_frame);
+        max = max.max(per_frame);
+        total += t * INSTRUCTIONS_PER_TICK;
+    }
+    let frames = (BATCHES * BATCH) as u64;
+    let mean = total as f64 / frames as f64;
+    let rate_hz = pipeline.tau0_ps().map_or(0.0, |ps| 1e12 / ps as f64);
+    let counters = pipeline.link_counters();
+    hprintln!(
+        "{}: {:.0} instructions per frame (batches of {}: {} to {}), {} frames, {} CRC errors; at {:.1} frames/s \
+         {:.2} M instructions/s = {:.1} % of {:.0} MHz at one instruction per cycle",
+        name,
+        mean,
+        BATCH,
+        min,
+        max,
+        frames,
+        counters.crc_errors,
+        rate_hz,
+        mean * rate_hz / 1e6,
+        100.0 * mean * rate_hz / MCU_HZ,
+        MCU_HZ / 1e6
+    );
+}
+
+/// SysTick ticks taken by `f` (less than one wrap of the 24-bit counter: 83 M instructions).
+fn ticks_between(f: impl FnOnce()) -> u64 {
+    let start = SYST::get_current();
+    f();
+    let end = SYST::get_current();
+    u64::from(start.wrapping_sub(end) & SYST_MASK)
+}
+
+fn exit(ok: bool) -> ! {
+    debug::exit(if ok {
+        debug::EXIT_SUCCESS
+    } else {
+        debug::EXIT_FAILURE
+    });
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    hprintln!("panic: {}", info);
+    exit(false)
+}
