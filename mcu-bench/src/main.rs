@@ -11,10 +11,13 @@ use cortex_m::peripheral::SYST;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
+use shared::allan::AllanAccumulator;
 use shared::bench::BenchFrames;
-use shared::fuse::FusionMode;
-use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
-use shared::wire::frame::FRAME_LEN;
+use shared::calib::{AXES, CalibrationTable, RawCounts};
+use shared::fuse::{Fusion, FusionConfig, FusionMode};
+use shared::pipeline::{AllanBank, FUSED_CHANNEL0, Pipeline, PipelineConfig};
+use shared::wire::frame::{FRAME_LEN, GROUPS};
+use shared::wire::{Decoded, FrameDecoder};
 
 /// Instructions per SysTick tick: `-icount shift=3` = 8 ns per instruction, SysTick at 25 MHz = 40 ns per tick.
 const INSTRUCTIONS_PER_TICK: u64 = 5;
@@ -80,6 +83,7 @@ fn main() -> ! {
     ] {
         count(name, config, bank);
     }
+    stages(bank);
     exit(true)
 }
 
@@ -134,6 +138,81 @@ fn count(name: &str, config: PipelineConfig, bank: &mut AllanBank) {
         100.0 * mean * rate_hz / MCU_HZ,
         MCU_HZ / 1e6
     );
+    // Every frame must have gone through: a count over rejected frames would be a count of the wrong work.
+    if counters.crc_errors != 0
+        || u64::from(counters.frames) != (WARMUP_FRAMES + BATCHES * BATCH) as u64
+    {
+        hprintln!("frames lost on the link: the counts above are void");
+        exit(false);
+    }
+}
+
+/// The stages of a frame's path run one at a time over the same stream (default fusion), so that each has its own
+/// count: link decoding with the CRC, the 16 groups' calibration, the fusion, the 102 Allan channels. Their sum is
+/// below the pipeline's by what `Pipeline` adds (output averaging, health, bookkeeping).
+fn stages(bank: &mut AllanBank) {
+    const NAMES: [&str; 4] = [
+        "decode + CRC",
+        "calibration (16 groups)",
+        "fusion",
+        "Allan (102 channels)",
+    ];
+    let cal = CalibrationTable::<GROUPS>::factory();
+    let mut decoder = FrameDecoder::new();
+    let mut fusion = Fusion::<GROUPS>::new(FusionConfig::DEFAULT);
+    bank.0.iter_mut().for_each(AllanAccumulator::reset);
+    let mut frames = BenchFrames::new();
+    let mut bytes = [0u8; FRAME_LEN * BATCH];
+    let mut decoded: [Option<Decoded>; BATCH] = [None; BATCH];
+    let mut raw = [[RawCounts::default(); GROUPS]; BATCH];
+    let mut axes = [[[0i32; AXES]; GROUPS]; BATCH];
+    let mut fused = [[0i32; AXES]; BATCH];
+    let overhead = ticks_between(|| {});
+    let mut totals = [0u64; NAMES.len()];
+    for batch in 0..WARMUP_FRAMES / BATCH + BATCHES {
+        for frame in bytes.chunks_exact_mut(FRAME_LEN) {
+            frame.copy_from_slice(&frames.next_bytes());
+        }
+        let ticks = [
+            ticks_between(|| {
+                let mut input = &bytes[..];
+                for d in decoded.iter_mut() {
+                    *d = decoder.decode(&mut input);
+                }
+            }),
+            ticks_between(|| {
+                for ((d, r), a) in decoded.iter().zip(&mut raw).zip(&mut axes) {
+                    if let Some(d) = d {
+                        *r = d.frame.raw.map(|codes| RawCounts::from_adc(&codes));
+                        for ((out, r), g) in a.iter_mut().zip(r.iter()).zip(&cal.groups) {
+                            *out = g.apply(r);
+                        }
+                    }
+                }
+            }),
+            ticks_between(|| {
+                for ((f, r), a) in fused.iter_mut().zip(&raw).zip(&axes) {
+                    *f = fusion.fuse(r, a, &cal).axes;
+                }
+            }),
+            ticks_between(|| {
+                let (sensors, fused_channels) = bank.0.split_at_mut(FUSED_CHANNEL0);
+                for (a, f) in axes.iter().zip(&fused) {
+                    AllanAccumulator::push_each(sensors, a.as_flattened());
+                    AllanAccumulator::push_each(fused_channels, f);
+                }
+            }),
+        ];
+        if batch >= WARMUP_FRAMES / BATCH {
+            for (total, t) in totals.iter_mut().zip(ticks) {
+                *total += t.saturating_sub(overhead) * INSTRUCTIONS_PER_TICK;
+            }
+        }
+    }
+    let frames = (BATCHES * BATCH) as u64;
+    for (name, total) in NAMES.iter().zip(totals) {
+        hprintln!("  {}: {} instructions per frame", name, total / frames);
+    }
 }
 
 /// SysTick ticks taken by `f` (less than one wrap of the 24-bit counter: 83 M instructions).
