@@ -148,11 +148,12 @@ fn count(name: &str, config: PipelineConfig, bank: &mut AllanBank) {
 }
 
 /// The stages of a frame's path run one at a time over the same stream (default fusion), so that each has its own
-/// count: link decoding with the CRC, the 16 groups' calibration, the fusion, the 102 Allan channels. Their sum is
-/// below the pipeline's by what `Pipeline` adds (output averaging, health, bookkeeping).
+/// count: link decoding with the CRC, ADC codes to signed counts, the 16 groups' calibration, the fusion, the 102 Allan
+/// channels. Their sum is below the pipeline's by what `Pipeline` adds (output averaging, health, bookkeeping).
 fn stages(bank: &mut AllanBank) {
-    const NAMES: [&str; 4] = [
+    const NAMES: [&str; 5] = [
         "decode + CRC",
+        "ADC codes to signed counts",
         "calibration (16 groups)",
         "fusion",
         "Allan (102 channels)",
@@ -181,12 +182,18 @@ fn stages(bank: &mut AllanBank) {
                 }
             }),
             ticks_between(|| {
-                for ((d, r), a) in decoded.iter().zip(&mut raw).zip(&mut axes) {
+                for (d, r) in decoded.iter().zip(&mut raw) {
                     if let Some(d) = d {
-                        *r = d.frame.raw.map(|codes| RawCounts::from_adc(&codes));
-                        for ((out, r), g) in a.iter_mut().zip(r.iter()).zip(&cal.groups) {
-                            *out = g.apply(r);
+                        for (r, codes) in r.iter_mut().zip(&d.frame.raw) {
+                            *r = RawCounts::from_adc(codes);
                         }
+                    }
+                }
+            }),
+            ticks_between(|| {
+                for (r, a) in raw.iter().zip(&mut axes) {
+                    for ((out, r), g) in a.iter_mut().zip(r.iter()).zip(&cal.groups) {
+                        *out = g.apply(r);
                     }
                 }
             }),

@@ -124,7 +124,15 @@ fn rounding_matches_exact_reference() {
     let mut rng = crate::testutil::Rng::new(77);
     for shift in [1, 12, 23, 24, 40, 62] {
         let half = 1i64 << (shift - 1);
-        let mut cases = std::vec![0, 1, -1, i64::MAX, i64::MIN, i64::MAX - half, i64::MIN + half];
+        let mut cases = std::vec![
+            0,
+            1,
+            -1,
+            i64::MAX,
+            i64::MIN,
+            i64::MAX - half,
+            i64::MIN + half
+        ];
         for k in [-3i64, -2, -1, 0, 1, 2, 3, 1 << 20, -(1 << 20)] {
             let center = k.saturating_mul(2 * half).saturating_add(half);
             for c in [center, center.wrapping_neg()] {
@@ -133,7 +141,11 @@ fn rounding_matches_exact_reference() {
         }
         cases.extend((0..100_000).map(|_| (rng.next_u64() as i64) >> (rng.next_u64() % 64)));
         for acc in cases {
-            assert_eq!(round_shift_sat(acc, shift), reference(acc, shift), "{acc} >> {shift}");
+            assert_eq!(
+                round_shift_sat(acc, shift),
+                reference(acc, shift),
+                "{acc} >> {shift}"
+            );
         }
     }
 }
