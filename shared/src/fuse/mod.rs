@@ -193,9 +193,12 @@ impl NoiseEst {
     /// Averages in `Δr²/2` for the new residual `resid` (`last_resid` valid) with weight 2^−`shift`;
     /// `round` = 2^`shift` − 1.
     fn update(&mut self, resid: i32, shift: u32, round: i64) {
-        // |d| < 2³²: the square fits in u64.
-        let d = (i64::from(resid) - i64::from(self.last_resid)).unsigned_abs();
-        let sample = (d * d / 2).min(VAR_LIMIT);
+        // min(d²/2, VAR_LIMIT) with VAR_LIMIT = 2⁴⁷ = (2²⁴)²/2 equals (min(|d|, 2²⁴))²/2: one 32 × 32 → 64-bit
+        // multiply (UMULL on the Cortex-M4) instead of a 64-bit square and compare.
+        let d = (i64::from(resid) - i64::from(self.last_resid))
+            .unsigned_abs()
+            .min(VAR_LIMIT_ROOT) as u32;
+        let sample = u64::from(d) * u64::from(d) / 2;
         // var += (sample − var) / 2^shift, the quotient rounded toward zero (a negative dividend is biased by
         // 2^shift − 1 before the arithmetic shift); both terms ≤ 2⁴⁷, so everything fits in i64. Branch-free.
         let diff = sample as i64 - self.var as i64;
@@ -280,6 +283,9 @@ const GYRO_CHANNELS: u32 = (1 << crate::calib::GYRO_RAW) - 1;
 const ACCEL_CHANNELS: u32 = ((1 << RAW_CHANNELS) - 1) & !GYRO_CHANNELS;
 /// Largest noise variance kept, so that `var << 16` fits in `u64`.
 const VAR_LIMIT: u64 = 1 << 47;
+/// The difference whose `d²/2` is [`VAR_LIMIT`].
+const VAR_LIMIT_ROOT: u64 = 1 << 24;
+const _: () = assert!(VAR_LIMIT_ROOT * VAR_LIMIT_ROOT / 2 == VAR_LIMIT);
 
 /// Fusion state of an array of `G` groups (`G` ≤ 32).
 #[derive(Clone, Debug)]
