@@ -26,9 +26,9 @@ const SYST_MASK: u32 = 0x00FF_FFFF;
 /// Frames per timed batch (one output interval of the default configuration).
 const BATCH: usize = 32;
 /// Frames before timing starts: the noise estimates settle after 1024 and the weights are then in use.
-const WARMUP_FRAMES: usize = 2048;
+const WARMUP_FRAMES: usize = if cfg!(feature = "trace") { 64 } else { 2048 };
 /// Timed batches per configuration.
-const BATCHES: usize = 64;
+const BATCHES: usize = if cfg!(feature = "trace") { 2 } else { 64 };
 /// The flight MCU's core clock (STM32F405 at its maximum).
 const MCU_HZ: f64 = 168e6;
 
