@@ -112,21 +112,10 @@ impl NoiseId {
 /// `δ = r1/(1+r1) < 0.25` or `d = dmax` (use `dmax = 2` for the Allan family).
 /// `None` if `m = 0`, too few points, or a degenerate (constant) series.
 pub fn acf_noise_id(y: &[f64], m: usize, flavor: AcfFlavor, dmax: u32) -> Option<AcfResult> {
-    let mut scratch = Vec::new();
-    acf_noise_id_with(y, m, flavor, dmax, &mut scratch)
+    acf_noise_id_pyramid(y, m, flavor, dmax, &mut Vec::new(), &[])
 }
 
-pub(crate) fn acf_noise_id_with(
-    y: &[f64],
-    m: usize,
-    flavor: AcfFlavor,
-    dmax: u32,
-    z: &mut Vec<f64>,
-) -> Option<AcfResult> {
-    acf_noise_id_pyramid(y, m, flavor, dmax, z, &[])
-}
-
-/// [`acf_noise_id_with`] taking the block means of a power-of-two `m` from `pyramid` (level k = means of 2^k
+/// [`acf_noise_id`] with a scratch buffer `z`, taking the block means of a power-of-two `m` from `pyramid` (level k = means of 2^k
 /// samples, built by pairwise averaging) when it has that level: O(N/m) instead of O(N) per τ.
 pub(crate) fn acf_noise_id_pyramid(
     y: &[f64],
@@ -347,22 +336,10 @@ pub fn noise_id(
     m: usize,
     flavor: AcfFlavor,
 ) -> Option<NoiseId> {
-    let mut scratch = Vec::new();
-    noise_id_with(kind, y, phase, m, flavor, &mut scratch)
+    noise_id_pyramid(kind, y, phase, m, flavor, &mut Vec::new(), &[])
 }
 
-pub(crate) fn noise_id_with(
-    kind: DevKind,
-    y: &[f64],
-    phase: &Phase,
-    m: usize,
-    flavor: AcfFlavor,
-    scratch: &mut Vec<f64>,
-) -> Option<NoiseId> {
-    noise_id_pyramid(kind, y, phase, m, flavor, scratch, &[])
-}
-
-/// [`noise_id_with`] with a pyramid of block means (see [`acf_noise_id_pyramid`]).
+/// [`noise_id`] with a scratch buffer and a pyramid of block means (see [`acf_noise_id_pyramid`]).
 pub(crate) fn noise_id_pyramid(
     kind: DevKind,
     y: &[f64],

@@ -306,34 +306,33 @@ fn byte_mask(block: &[u8; 64], a: u8, b: u8) -> u64 {
 fn parse_chunk(
     b: &[u8],
     first_line: usize,
-    roles: &[Role],
     target_of: &[Option<usize>],
     names: &[&str],
     out: &mut [&mut [f64]],
 ) -> Result<usize, CsvError> {
-    let ncols = roles.len();
+    let ncols = target_of.len();
     let (mut line_no, mut row, mut col, mut start) = (first_line, 0usize, 0usize, 0usize);
     let mut blocks = b.chunks_exact(64);
     let mut offset = 0;
-    let tail_mask = |rest: &[u8], c: u8| {
-        rest.iter()
-            .enumerate()
-            .fold(0u64, |m, (i, &x)| m | u64::from(x == c) << i)
-    };
     loop {
         // Separators and line ends of the next 64 bytes.
         let (mut seps, newlines) = match blocks.next().and_then(|w| <&[u8; 64]>::try_from(w).ok()) {
             Some(w) => (byte_mask(w, b',', b'\n'), byte_mask(w, b'\n', b'\n')),
             None => {
+                // The rest, padded with zero bytes (neither separator) to a whole block.
                 let rest = blocks.remainder();
-                let nl = tail_mask(rest, b'\n');
+                let mut padded = [0u8; 64];
+                if let Some(head) = padded.get_mut(..rest.len()) {
+                    head.copy_from_slice(rest);
+                }
                 // A last line without a line end ends at the end of the piece.
                 let last = if b.last().is_some_and(|&c| c != b'\n') {
                     1u64 << rest.len()
                 } else {
                     0
                 };
-                (tail_mask(rest, b',') | nl | last, nl | last)
+                let nl = byte_mask(&padded, b'\n', b'\n') | last;
+                (byte_mask(&padded, b',', b'\n') | last, nl)
             }
         };
         while seps != 0 {
@@ -435,7 +434,6 @@ fn find_header(buf: &[u8], eof: bool) -> Option<(usize, (usize, usize))> {
 
 /// What the parser needs to know of the header.
 struct Layout<'a> {
-    roles: &'a [Role],
     target_of: &'a [Option<usize>],
     names: &'a [&'a str],
 }
@@ -495,14 +493,7 @@ fn parse_region(
         .zip(views.par_iter_mut())
         .zip(first_lines.par_iter())
         .map(|((piece, view), &first)| {
-            parse_chunk(
-                piece,
-                first,
-                layout.roles,
-                layout.target_of,
-                layout.names,
-                view,
-            )
+            parse_chunk(piece, first, layout.target_of, layout.names, view)
         })
         .collect();
     drop(views);
@@ -741,7 +732,6 @@ impl Recording {
             })
             .collect();
         let layout = Layout {
-            roles: &roles,
             target_of: &target_of,
             names: &names,
         };
