@@ -48,24 +48,27 @@ pub fn mean_label(kind: SensorKind, axis: usize) -> String {
 
 /// The equal-weight cluster mean of one axis over all groups that have it; `None` if none.
 pub fn cluster_mean(rec: &Recording, kind: SensorKind, axis: usize) -> Option<(Vec<f64>, usize)> {
-    let cols: Vec<&[f64]> = rec
+    let mut cols = rec
         .columns
         .iter()
         .filter(|c| c.kind == kind && c.axis == axis)
-        .map(|c| c.data.as_slice())
-        .collect();
-    let n = cols.len();
-    if n == 0 {
-        return None;
+        .map(|c| c.data.as_slice());
+    // Column by column (each a vectorised pass), in the same order of addition as a sum per row.
+    let mut mean = cols.next()?.to_vec();
+    mean.resize(rec.len(), f64::NAN);
+    let mut n = 1;
+    for c in cols {
+        for (m, v) in mean.iter_mut().zip(c) {
+            *m += v;
+        }
+        if let Some(missing) = mean.get_mut(c.len()..) {
+            missing.fill(f64::NAN);
+        }
+        n += 1;
     }
-    let mean = (0..rec.len())
-        .map(|i| {
-            cols.iter()
-                .map(|c| c.get(i).copied().unwrap_or(f64::NAN))
-                .sum::<f64>()
-                / n as f64
-        })
-        .collect();
+    for m in &mut mean {
+        *m /= n as f64;
+    }
     Some((mean, n))
 }
 
@@ -123,19 +126,23 @@ pub fn analyze(
         })
         .collect();
     if req.cluster {
-        for kind in [SensorKind::Gyro, SensorKind::Accel] {
-            for axis in 0..3 {
-                if let Some((data, n)) = cluster_mean(rec, kind, axis) {
-                    jobs.push((
-                        mean_label(kind, axis),
-                        kind,
-                        axis,
-                        None,
-                        n,
-                        std::borrow::Cow::Owned(data),
-                    ));
-                }
-            }
+        let axes: Vec<(SensorKind, usize)> = [SensorKind::Gyro, SensorKind::Accel]
+            .into_iter()
+            .flat_map(|kind| (0..3).map(move |axis| (kind, axis)))
+            .collect();
+        let means: Vec<_> = axes
+            .into_par_iter()
+            .filter_map(|(kind, axis)| Some((kind, axis, cluster_mean(rec, kind, axis)?)))
+            .collect();
+        for (kind, axis, (data, n)) in means {
+            jobs.push((
+                mean_label(kind, axis),
+                kind,
+                axis,
+                None,
+                n,
+                std::borrow::Cow::Owned(data),
+            ));
         }
     }
     let options = Options::default();

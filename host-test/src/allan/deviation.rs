@@ -1,5 +1,7 @@
 //! Deviation kernels (ADEV, OADEV, MDEV) working on the integrated phase.
 
+use super::lanes;
+
 /// Which member of the Allan family to compute.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum DevKind {
@@ -127,17 +129,21 @@ impl Phase {
         }
         // A non-finite value makes the sum non-finite (a finite sum also proves every value finite); only then is
         // the data scanned again, to tell such a value from a sum that overflowed.
-        let sum = y.iter().sum::<f64>();
+        let sum = lanes::sum(y);
         if !sum.is_finite() && y.iter().any(|v| !v.is_finite()) {
             return false;
         }
         let mean = sum / y.len() as f64;
-        self.x.reserve(y.len() + 1);
-        self.x.push(0.0);
-        let mut acc = 0.0;
-        for &v in y {
-            acc += v - mean;
-            self.x.push(acc * tau0_s);
+        // The running sum is serial (one addition's latency per sample); writing into a sized buffer keeps the
+        // loop free of anything else.
+        self.x.resize(y.len() + 1, 0.0);
+        if let Some((first, rest)) = self.x.split_first_mut() {
+            *first = 0.0;
+            let mut acc = 0.0;
+            for (x, &v) in rest.iter_mut().zip(y) {
+                acc += v - mean;
+                *x = acc * tau0_s;
+            }
         }
         true
     }
@@ -224,32 +230,11 @@ fn avar(x: &[f64], m: usize, tau0_s: f64, overlapping: bool) -> (f64, usize) {
     let (s, n) = if overlapping {
         let n = l - 2 * m;
         let (a, b, c) = (&x[2 * m..], &x[m..l - m], &x[..n]);
-        // Eight independent partial sums (four 2-lane vectors): the additions' latency is hidden, so the loop runs
-        // at the speed of its loads. The order of summation differs from a naive loop at the 1e-16 level.
-        const LANES: usize = 8;
-        let mut acc = [0.0f64; LANES];
-        let (a8, b8, c8) = (
-            a.chunks_exact(LANES),
-            b.chunks_exact(LANES),
-            c.chunks_exact(LANES),
-        );
-        let tail = a8
-            .remainder()
-            .iter()
-            .zip(b8.remainder())
-            .zip(c8.remainder());
-        for ((a, b), c) in a8.zip(b8).zip(c8) {
-            for (k, s) in acc.iter_mut().enumerate() {
-                let d = a[k] - 2.0 * b[k] + c[k];
-                *s += d * d;
-            }
-        }
-        for ((a, b), c) in tail {
+        let s = lanes::sum3(a, b, c, |a, b, c| {
             let d = a - 2.0 * b + c;
-            acc[0] += d * d;
-        }
-        let [s0, s1, s2, s3, s4, s5, s6, s7] = acc;
-        (((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7)), n)
+            d * d
+        });
+        (s, n)
     } else {
         let mut s = 0.0;
         let mut n = 0;

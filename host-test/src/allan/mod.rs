@@ -40,6 +40,7 @@ mod analysis;
 mod ci;
 mod deviation;
 mod edf;
+mod lanes;
 mod noise;
 mod taus;
 

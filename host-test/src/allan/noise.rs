@@ -2,6 +2,7 @@
 //! B1 / R(n) bias-ratio fallback that Stable32 uses when too few points are left.
 
 use super::deviation::{DevKind, Phase};
+use super::lanes;
 
 /// Minimum number of τ-averaged frequency points for the lag-1 ACF method
 /// (Stable32: "at least 30 analysis points"; allantools raises below 30).
@@ -132,22 +133,33 @@ pub(crate) fn acf_noise_id_pyramid(
     if points < ACF_MIN_POINTS {
         return None;
     }
-    match pyramid
+    // The block means: a level of the pyramid or `y` itself (m = 1), read in place; copied into `z` only when
+    // they must change (detrending), or computed into `z`.
+    let level = pyramid
         .get(m.trailing_zeros() as usize)
         .filter(|l| m.is_power_of_two() && l.len() == points)
-    {
-        Some(level) => {
-            z.clear();
-            z.extend_from_slice(level);
+        .map(Vec::as_slice)
+        .or((m == 1).then_some(y));
+    let mut in_z = flavor == AcfFlavor::Allantools || level.is_none();
+    if in_z {
+        match level {
+            Some(l) => {
+                z.clear();
+                z.extend_from_slice(l);
+            }
+            None => block_averages(y, m, z),
         }
-        None => block_averages(y, m, z),
     }
     if flavor == AcfFlavor::Allantools {
         detrend_linear(z);
     }
     let mut d = 0u32;
     loop {
-        let r1 = lag1_autocorrelation(z, flavor == AcfFlavor::Stable32)?;
+        let current: &[f64] = match level {
+            Some(l) if !in_z => l,
+            _ => z,
+        };
+        let r1 = lag1_autocorrelation(current, flavor == AcfFlavor::Stable32)?;
         let delta = r1 / (1.0 + r1);
         if !delta.is_finite() {
             return None;
@@ -166,13 +178,22 @@ pub(crate) fn acf_noise_id_pyramid(
                 points,
             });
         }
-        if z.len() < 3 {
+        if current.len() < 3 {
             return None;
         }
-        for i in 0..z.len() - 1 {
-            z[i] = z[i + 1] - z[i];
+        match level {
+            Some(l) if !in_z => {
+                z.clear();
+                z.extend(l.windows(2).map(|w| w[1] - w[0]));
+                in_z = true;
+            }
+            _ => {
+                for i in 0..z.len() - 1 {
+                    z[i] = z[i + 1] - z[i];
+                }
+                z.pop();
+            }
         }
-        z.pop();
         d += 1;
     }
 }
@@ -184,7 +205,7 @@ fn block_averages(y: &[f64], m: usize, out: &mut Vec<f64>) {
         // x / 1 = x: a copy, not N divisions.
         out.extend_from_slice(y);
     } else {
-        out.extend(y.chunks_exact(m).map(|c| c.iter().sum::<f64>() / m as f64));
+        out.extend(y.chunks_exact(m).map(|c| lanes::sum(c) / m as f64));
     }
 }
 
@@ -196,7 +217,7 @@ fn detrend_linear(z: &mut [f64]) {
     }
     let nf = n as f64;
     let t_mean = (nf - 1.0) / 2.0;
-    let z_mean = z.iter().sum::<f64>() / nf;
+    let z_mean = lanes::sum(z) / nf;
     let (mut sxy, mut sxx) = (0.0, 0.0);
     for (i, &v) in z.iter().enumerate() {
         let dt = i as f64 - t_mean;
@@ -216,16 +237,9 @@ fn lag1_autocorrelation(z: &[f64], scaled: bool) -> Option<f64> {
     if n < 2 {
         return None;
     }
-    let mean = z.iter().sum::<f64>() / n as f64;
-    let mut num = 0.0;
-    let mut den = 0.0;
-    for i in 0..n {
-        let a = z[i] - mean;
-        den += a * a;
-        if i + 1 < n {
-            num += a * (z[i + 1] - mean);
-        }
-    }
+    let mean = lanes::sum(z) / n as f64;
+    let den = lanes::sum2(z, z, |a, _| (a - mean) * (a - mean));
+    let num = lanes::sum2(z, z.get(1..).unwrap_or(&[]), |a, b| (a - mean) * (b - mean));
     let mut r1 = num / den;
     if scaled {
         r1 *= (n - 1) as f64 / n as f64;
@@ -295,10 +309,13 @@ pub fn b1_noise_id(kind: DevKind, y: &[f64], phase: &Phase, m: usize) -> Option<
     if n < 2 {
         return None;
     }
-    // Sample variance of the block means, two-pass without a buffer.
-    let means = y.chunks_exact(m).map(|c| c.iter().sum::<f64>() / m as f64);
-    let grand = means.clone().sum::<f64>() / k as f64;
-    let svar = means.map(|v| (v - grand) * (v - grand)).sum::<f64>() / (k - 1) as f64;
+    // Sample variance of the block means (fewer than ACF_MIN_POINTS of them here), two-pass.
+    let means: Vec<f64> = y
+        .chunks_exact(m)
+        .map(|c| lanes::sum(c) / m as f64)
+        .collect();
+    let grand = means.iter().sum::<f64>() / k as f64;
+    let svar = means.iter().map(|v| (v - grand) * (v - grand)).sum::<f64>() / (k - 1) as f64;
     let avar = phase.avar_nonoverlapping(m)?;
     let b1 = svar / avar;
     if !b1.is_finite() {
