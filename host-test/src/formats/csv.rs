@@ -765,11 +765,12 @@ impl Recording {
             };
             let (region, rest) = body.split_at(end);
             if first {
-                // Room for all rows, estimated from the first block's bytes per line.
+                // Room for all rows, estimated from the bytes per line of the first MiB.
                 first = false;
-                let lines = count_newlines(region).max(1);
+                let sample = region.get(..region.len().min(1 << 20)).unwrap_or(region);
+                let lines = count_newlines(sample).max(1);
                 let rows =
-                    (size_hint as f64 * lines as f64 / region.len().max(1) as f64 * 1.01) as usize;
+                    (size_hint as f64 * lines as f64 / sample.len().max(1) as f64 * 1.01) as usize;
                 // Zeroed allocations are fresh pages, faulted in (in parallel) by the parsers' first writes.
                 for t in &mut targets {
                     *t = vec![0.0; rows];

@@ -2,7 +2,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::{Rng, interval};
+use super::{Rng, accel_near_identity, interval};
 use crate::calibrate::linalg::{arrv, mat3, vec3};
 use crate::calibrate::*;
 
@@ -13,23 +13,18 @@ fn cal(rng: &mut Rng, n: usize) -> CalibrationFile {
         raw_min: -32768,
         raw_max: 32767,
         groups: (0..n)
-            .map(|_| GroupCalF64 {
-                gyro_matrix_dps_per_count: [
-                    [1.0 / 16.4, 0.0, 0.0, 0.0],
-                    [0.0, 1.0 / 16.4, 0.0, 0.0],
-                    [0.0, 0.0, 1.0 / 16.4, 0.0],
-                ],
-                gyro_bias_counts: [1.0, 2.0, 3.0, 0.0],
-                accel_matrix_g_per_count: core::array::from_fn(|r| {
-                    core::array::from_fn(|c| {
-                        (f64::from(u8::from(r == c)) + 0.01 * rng.normal()) / 2048.0
-                    })
-                }),
-                accel_bias_counts: [
-                    rng.normal() * 40.0,
-                    rng.normal() * 40.0,
-                    rng.normal() * 40.0,
-                ],
+            .map(|_| {
+                let (accel_matrix_g_per_count, accel_bias_counts) = accel_near_identity(rng);
+                GroupCalF64 {
+                    gyro_matrix_dps_per_count: [
+                        [1.0 / 16.4, 0.0, 0.0, 0.0],
+                        [0.0, 1.0 / 16.4, 0.0, 0.0],
+                        [0.0, 0.0, 1.0 / 16.4, 0.0],
+                    ],
+                    gyro_bias_counts: [1.0, 2.0, 3.0, 0.0],
+                    accel_matrix_g_per_count,
+                    accel_bias_counts,
+                }
             })
             .collect(),
         metadata: None,

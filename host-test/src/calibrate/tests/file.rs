@@ -2,13 +2,13 @@
 
 use shared::calib::{CalibrationTable, RawCounts};
 
-use super::Rng;
+use super::{Rng, accel_near_identity};
 use crate::calibrate::*;
 
 fn sample_file(rng: &mut Rng, n: usize) -> CalibrationFile {
     let groups = (0..n)
-        .map(|_| GroupCalF64 {
-            gyro_matrix_dps_per_count: core::array::from_fn(|r| {
+        .map(|_| {
+            let gyro_matrix_dps_per_count = core::array::from_fn(|r| {
                 core::array::from_fn(|c| {
                     if c == 3 {
                         0.0
@@ -16,23 +16,20 @@ fn sample_file(rng: &mut Rng, n: usize) -> CalibrationFile {
                         (rng.normal() + f64::from(u8::from(r == c))) / 16.4
                     }
                 })
-            }),
-            gyro_bias_counts: [
+            });
+            let gyro_bias_counts = [
                 rng.normal() * 30.0,
                 rng.normal() * 30.0,
                 rng.normal() * 30.0,
                 0.0,
-            ],
-            accel_matrix_g_per_count: core::array::from_fn(|r| {
-                core::array::from_fn(|c| {
-                    (f64::from(u8::from(r == c)) + 0.01 * rng.normal()) / 2048.0
-                })
-            }),
-            accel_bias_counts: [
-                rng.normal() * 40.0,
-                rng.normal() * 40.0,
-                rng.normal() * 40.0,
-            ],
+            ];
+            let (accel_matrix_g_per_count, accel_bias_counts) = accel_near_identity(rng);
+            GroupCalF64 {
+                gyro_matrix_dps_per_count,
+                gyro_bias_counts,
+                accel_matrix_g_per_count,
+                accel_bias_counts,
+            }
         })
         .collect();
     CalibrationFile {

@@ -50,6 +50,20 @@ impl Rng {
     }
 }
 
+/// A near-identity accelerometer (2048 counts/g, 1 % scale and misalignment spread) and its biases (40 counts
+/// rms), drawn in that order.
+pub(super) fn accel_near_identity(rng: &mut Rng) -> ([[f64; 3]; 3], [f64; 3]) {
+    let matrix_g_per_count = core::array::from_fn(|r| {
+        core::array::from_fn(|c| (f64::from(u8::from(r == c)) + 0.01 * rng.normal()) / 2048.0)
+    });
+    let bias_counts = [
+        rng.normal() * 40.0,
+        rng.normal() * 40.0,
+        rng.normal() * 40.0,
+    ];
+    (matrix_g_per_count, bias_counts)
+}
+
 /// A static interval with the given means (1500 frames, standard errors `sem_counts` on every channel).
 pub(super) fn interval(
     start_s: f64,
