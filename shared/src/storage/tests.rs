@@ -253,3 +253,59 @@ fn geometry_is_checked() {
     }
     assert!(matches!(CalStore::new(Odd), Err(StoreError::Geometry)));
 }
+
+/// Where the bytes of a record lie in a slot, to aim damage at its header, payload and CRC.
+fn record_len(id: u32) -> usize {
+    HEADER_LEN + table(id).encode(&mut scratch()).unwrap().len() + CRC_LEN
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(500))]
+    /// Damage anywhere in slot B (byte flips, a length field of any value, bytes of any value) never makes boot
+    /// panic or fail, never loses the intact record in slot A, and yields B's table only if B still checks.
+    #[test]
+    fn damaged_slot_never_panics_and_the_other_record_survives(
+        flips in proptest::collection::vec((0usize..2 * 1024, 0u8..=255), 1..8),
+        length in proptest::prelude::any::<u32>(),
+        set_length in proptest::prelude::any::<bool>(),
+    ) {
+        let mut store = CalStore::new(MockFlash::new()).unwrap();
+        store.store(&table(1), &mut scratch()).unwrap();
+        store.store(&table(2), &mut scratch()).unwrap(); // slot B
+        let mut flash = store.into_inner();
+        let b = SLOT_BLOCKS * ERASE;
+        let span = record_len(2) + 8;
+        for (at, x) in flips {
+            flash.mem[b + at % span] ^= x.max(1);
+        }
+        if set_length {
+            flash.mem[b + 8..b + 12].copy_from_slice(&length.to_le_bytes());
+        }
+        let l = load(flash);
+        proptest::prop_assert_eq!(l.slots[0], SlotState::Valid(1));
+        match l.slots[1] {
+            SlotState::Valid(2) => proptest::prop_assert_eq!((l.table, l.seq), (table(2), Some(2))),
+            _ => proptest::prop_assert_eq!((l.table, l.seq), (table(1), Some(1))),
+        }
+    }
+
+    /// Flash holding anything at all (half the time behind a valid magic, so that the length and CRC checks are
+    /// what refuses it) loads the factory default.
+    #[test]
+    fn arbitrary_flash_loads_the_factory_default(
+        a in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..200),
+        b in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..200),
+        magic in proptest::prelude::any::<bool>(),
+    ) {
+        let mut flash = MockFlash::new();
+        for (slot, bytes) in [(0, &a), (SLOT_BLOCKS * ERASE, &b)] {
+            flash.mem[slot..slot + bytes.len()].copy_from_slice(bytes);
+            if magic && bytes.len() >= 4 {
+                flash.mem[slot..slot + 4].copy_from_slice(&MAGIC.to_le_bytes());
+            }
+        }
+        let l = load(flash);
+        proptest::prop_assert_eq!((l.table, l.seq), (CalibrationTable::factory(), None));
+        proptest::prop_assert!(l.slots.iter().all(|s| !matches!(s, SlotState::Valid(_))));
+    }
+}
