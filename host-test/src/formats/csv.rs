@@ -195,22 +195,24 @@ fn digits(b: &[u8], p: &mut usize, mant: &mut u64) -> usize {
 
 /// Parses a plain decimal (`[-]digits[.digits]`, ≤ 19 digits, mantissa ≤ 2⁵³, ≤ 22 decimals) at `b[p..]`; returns
 /// the value and the index after it, or `None` (the caller then takes the general path). Exact: Clinger's fast path.
-/// Eight digits at a time where 24 bytes follow (the body of a file), one at a time near its end.
+/// Eight digits at a time where 32 bytes follow (the body of a file), one at a time near its end.
 #[inline(always)]
-fn fast_number(b: &[u8], mut p: usize) -> Option<(f64, usize)> {
+fn fast_number(b: &[u8], p: usize) -> Option<(f64, usize)> {
     let neg = b.get(p) == Some(&b'-');
-    p += usize::from(neg);
-    let (mant, int_digits, frac, end) = match swar_number(b, p) {
+    let window = b.get(p..p + 32).and_then(|w| w.try_into().ok());
+    let (mant, int_digits, frac, len) = match window.and_then(|w| swar_number(w, usize::from(neg)))
+    {
         Some(parsed) => parsed,
         None => {
+            let mut q = p + usize::from(neg);
             let mut mant = 0u64;
-            let int_digits = digits(b, &mut p, &mut mant);
+            let int_digits = digits(b, &mut q, &mut mant);
             let mut frac = 0;
-            if b.get(p) == Some(&b'.') {
-                p += 1;
-                frac = digits(b, &mut p, &mut mant);
+            if b.get(q) == Some(&b'.') {
+                q += 1;
+                frac = digits(b, &mut q, &mut mant);
             }
-            (mant, int_digits, frac, p)
+            (mant, int_digits, frac, q - p)
         }
     };
     if int_digits + frac == 0 || int_digits + frac > 19 || mant > 1 << 53 || frac > 22 {
@@ -218,7 +220,7 @@ fn fast_number(b: &[u8], mut p: usize) -> Option<(f64, usize)> {
     }
     // The sign as a bit, not a branch (it is a coin toss in noise data).
     let m = mant as f64 / POW10[frac];
-    Some((f64::from_bits(m.to_bits() | u64::from(neg) << 63), end))
+    Some((f64::from_bits(m.to_bits() | u64::from(neg) << 63), p + len))
 }
 
 /// `10^k` for k = 0 ..= 8.
@@ -252,27 +254,31 @@ fn swar_digits(word: u64) -> (usize, u64) {
     (count, v)
 }
 
-/// 8 bytes at `b[p..]`, little-endian.
+/// 8 bytes of `w` from `i` (at most 24: every read stays in the window without a check), little-endian.
 #[inline(always)]
-fn word_at(b: &[u8], p: usize) -> Option<u64> {
-    Some(u64::from_le_bytes(b.get(p..p + 8)?.try_into().ok()?))
+fn word_in(w: &[u8; 32], i: usize) -> u64 {
+    let i = i.min(24);
+    w.get(i..i + 8)
+        .and_then(|s| s.try_into().ok())
+        .map_or(0, u64::from_le_bytes)
 }
 
-/// The digits of `[digits][.digits]` at `b[p..]` eight at a time: (mantissa, integer digits, decimals, end), or
-/// `None` where fewer than 24 bytes remain or a part has 8 or more (integer) / 16 or more (decimal) digits.
+/// The digits of `[digits][.digits]` from `w[q..]` (q = 1 after a sign, else 0) eight at a time: (mantissa,
+/// integer digits, decimals, bytes from `w[0]` to the end), or `None` where a part has 8 or more (integer) / 16 or
+/// more (decimal) digits.
 #[inline(always)]
-fn swar_number(b: &[u8], p: usize) -> Option<(u64, usize, usize, usize)> {
-    let (int_digits, int_value) = swar_digits(word_at(b, p)?);
+fn swar_number(w: &[u8; 32], q: usize) -> Option<(u64, usize, usize, usize)> {
+    let (int_digits, int_value) = swar_digits(word_in(w, q));
     if int_digits == 8 {
         return None;
     }
-    let dot = p + int_digits;
-    if b.get(dot) != Some(&b'.') {
+    let dot = q + int_digits;
+    if w.get(dot) != Some(&b'.') {
         return Some((int_value, int_digits, 0, dot));
     }
     // Two words of decimals; the second counts only when the first is all digits.
-    let (k1, v1) = swar_digits(word_at(b, dot + 1)?);
-    let (k2, v2) = swar_digits(word_at(b, dot + 9)?);
+    let (k1, v1) = swar_digits(word_in(w, dot + 1));
+    let (k2, v2) = swar_digits(word_in(w, dot + 9));
     let (k2, v2) = if k1 == 8 { (k2, v2) } else { (0, 0) };
     if k2 == 8 {
         return None;
@@ -1066,7 +1072,7 @@ mod tests {
         }
     }
 
-    /// The eight-digits-at-a-time path (a number followed by ≥ 24 bytes) and the digit-at-a-time path (near the
+    /// The eight-digits-at-a-time path (32 bytes from the cell on) and the digit-at-a-time path (near the
     /// end of the text) give the same value and end for every kind of cell.
     #[test]
     fn swar_and_scalar_number_paths_agree() {
