@@ -41,6 +41,29 @@ pub(crate) fn sum3(a: &[f64], b: &[f64], c: &[f64], f: impl Fn(f64, f64, f64) ->
     combine(acc) + tail
 }
 
+/// Both sums of `f(a_i, b_i) = (u_i, v_i)`, `(Σ u_i, Σ v_i)`, over the common length of the two slices, in one pass.
+#[inline(always)]
+pub(crate) fn sum2_pair(a: &[f64], b: &[f64], f: impl Fn(f64, f64) -> (f64, f64)) -> (f64, f64) {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let (a8, b8) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
+    let (mut tail_u, mut tail_v) = (0.0, 0.0);
+    for (a, b) in a8.remainder().iter().zip(b8.remainder()) {
+        let (u, v) = f(*a, *b);
+        tail_u += u;
+        tail_v += v;
+    }
+    let (mut acc_u, mut acc_v) = ([0.0f64; LANES], [0.0f64; LANES]);
+    for (a, b) in a8.zip(b8) {
+        for k in 0..LANES {
+            let (u, v) = f(a[k], b[k]);
+            acc_u[k] += u;
+            acc_v[k] += v;
+        }
+    }
+    (combine(acc_u) + tail_u, combine(acc_v) + tail_v)
+}
+
 /// `Σ f(a_i, b_i)` over the common length of the two slices.
 #[inline(always)]
 pub(crate) fn sum2(a: &[f64], b: &[f64], f: impl Fn(f64, f64) -> f64) -> f64 {
@@ -68,6 +91,9 @@ mod tests {
             assert_eq!(sum2(s, s, |a, b| a * b), sq, "n = {n}");
             let lag: f64 = s.windows(2).map(|w| w[0] * w[1]).sum();
             assert_eq!(sum2(s, s.get(1..).unwrap_or(&[]), |a, b| a * b), lag);
+            let pair = sum2_pair(s, s.get(1..).unwrap_or(&[]), |a, b| (a * a, a * b));
+            let sq_head: f64 = s.iter().take(n.saturating_sub(1)).map(|v| v * v).sum();
+            assert_eq!(pair, (sq_head, lag), "n = {n}");
             let d2: f64 = s.windows(3).map(|w| w[2] - 2.0 * w[1] + w[0]).sum();
             let (a, b, c) = (s.get(2..).unwrap_or(&[]), s.get(1..).unwrap_or(&[]), s);
             assert_eq!(sum3(a, b, c, |a, b, c| a - 2.0 * b + c), d2);

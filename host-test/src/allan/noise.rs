@@ -238,8 +238,13 @@ fn lag1_autocorrelation(z: &[f64], scaled: bool) -> Option<f64> {
         return None;
     }
     let mean = lanes::sum(z) / n as f64;
-    let den = lanes::sum2(z, z, |a, _| (a - mean) * (a - mean));
-    let num = lanes::sum2(z, z.get(1..).unwrap_or(&[]), |a, b| (a - mean) * (b - mean));
+    // One pass for both sums: the squares of all but the last value with the lag-1 products, then the last square.
+    let (den_head, num) = lanes::sum2_pair(z, z.get(1..).unwrap_or(&[]), |a, b| {
+        let (da, db) = (a - mean, b - mean);
+        (da * da, da * db)
+    });
+    let last = z.last().map_or(0.0, |v| (v - mean) * (v - mean));
+    let den = den_head + last;
     let mut r1 = num / den;
     if scaled {
         r1 *= (n - 1) as f64 / n as f64;
