@@ -303,9 +303,9 @@ fn byte_mask(block: &[u8; 64], a: u8, b: u8) -> u64 {
     })
 }
 
-/// Parses the rows of one piece, writing row r of output column c into `out[c][r]`; returns the rows written.
-/// `first_line` is the file line number of the line before the piece's first one (a piece starts right after a
-/// line end); `target_of[col]` is the output column of each file column (`None`: ignored).
+/// Parses the rows of one piece, writing row r of file column c into `out[c][r]` (`None`: an ignored column);
+/// returns the rows written. `first_line` is the file line number of the line before the piece's first one (a
+/// piece starts right after a line end).
 ///
 /// Cells are found from bitmasks of the separators, 64 bytes at a time, so where a cell starts never waits for the
 /// cell before it to be parsed: the processor works on several numbers at once. Compiled also for AVX2 + BMI2 and
@@ -318,11 +318,10 @@ fn byte_mask(block: &[u8; 64], a: u8, b: u8) -> u64 {
 fn parse_chunk(
     b: &[u8],
     first_line: usize,
-    target_of: &[Option<usize>],
     names: &[&str],
-    out: &mut [&mut [f64]],
+    out: &mut [Option<&mut [f64]>],
 ) -> Result<usize, CsvError> {
-    let ncols = target_of.len();
+    let ncols = out.len();
     let (mut line_no, mut row, mut col, mut start) = (first_line, 0usize, 0usize, 0usize);
     let mut blocks = b.chunks_exact(64);
     let mut offset = 0;
@@ -363,12 +362,12 @@ fn parse_chunk(
                     continue;
                 }
             }
-            if let Some(t) = target_of.get(col).copied().flatten() {
+            if let Some(Some(column)) = out.get_mut(col) {
                 let value = match fast_number(b, start) {
                     Some((v, q)) if q == end => v,
                     _ => general_cell(b.get(start..end).unwrap_or(&[]), line_no + 1, col, names)?,
                 };
-                if let Some(slot) = out.get_mut(t).and_then(|c| c.get_mut(row)) {
+                if let Some(slot) = column.get_mut(row) {
                     *slot = value;
                 }
             }
@@ -486,8 +485,8 @@ fn parse_region(
         line_no += nl;
     }
     row_start.push(rows);
-    // Every piece writes its rows straight into its own slices of the columns.
-    let mut views: Vec<Vec<&mut [f64]>> = (0..pieces.len())
+    // Every piece writes its rows straight into its own slices of the columns, found by file column.
+    let mut by_target: Vec<Vec<Option<&mut [f64]>>> = (0..pieces.len())
         .map(|_| Vec::with_capacity(targets.len()))
         .collect();
     for target in targets.iter_mut() {
@@ -495,19 +494,27 @@ fn parse_region(
             target.resize(base + rows, 0.0);
         }
         let mut rest: &mut [f64] = target.get_mut(base..base + rows).unwrap_or_default();
-        for (view, w) in views.iter_mut().zip(row_start.windows(2)) {
+        for (view, w) in by_target.iter_mut().zip(row_start.windows(2)) {
             let (mine, tail) = rest.split_at_mut(w[1] - w[0]);
-            view.push(mine);
+            view.push(Some(mine));
             rest = tail;
         }
     }
+    let mut views: Vec<Vec<Option<&mut [f64]>>> = by_target
+        .into_iter()
+        .map(|mut slices| {
+            layout
+                .target_of
+                .iter()
+                .map(|t| t.and_then(|t| slices.get_mut(t).and_then(Option::take)))
+                .collect()
+        })
+        .collect();
     let written: Vec<Result<usize, CsvError>> = pieces
         .par_iter()
         .zip(views.par_iter_mut())
         .zip(first_lines.par_iter())
-        .map(|((piece, view), &first)| {
-            parse_chunk(piece, first, layout.target_of, layout.names, view)
-        })
+        .map(|((piece, view), &first)| parse_chunk(piece, first, layout.names, view))
         .collect();
     drop(views);
     // Pieces with empty lines wrote fewer rows than they had room for: close the gaps.
