@@ -13,9 +13,14 @@ fn combine(a: [f64; LANES]) -> f64 {
     ((a0 + a1) + (a2 + a3)) + ((a4 + a5) + (a6 + a7))
 }
 
-/// `Σ f(a_i, b_i, c_i)` over the common length of the three slices.
+/// `Σ f(a_i, b_i, c_i)` for each of the `K` outputs of `f`, over the common length of the three slices, in one pass.
 #[inline(always)]
-pub(crate) fn sum3(a: &[f64], b: &[f64], c: &[f64], f: impl Fn(f64, f64, f64) -> f64) -> f64 {
+fn sums<const K: usize>(
+    a: &[f64],
+    b: &[f64],
+    c: &[f64],
+    f: impl Fn(f64, f64, f64) -> [f64; K],
+) -> [f64; K] {
     let n = a.len().min(b.len()).min(c.len());
     let (a, b, c) = (&a[..n], &b[..n], &c[..n]);
     let (a8, b8, c8) = (
@@ -23,56 +28,48 @@ pub(crate) fn sum3(a: &[f64], b: &[f64], c: &[f64], f: impl Fn(f64, f64, f64) ->
         b.chunks_exact(LANES),
         c.chunks_exact(LANES),
     );
-    let mut tail = 0.0;
+    let mut acc = [[0.0f64; LANES]; K];
+    for ((a, b), c) in a8.clone().zip(b8.clone()).zip(c8.clone()) {
+        for k in 0..LANES {
+            for (s, v) in acc.iter_mut().zip(f(a[k], b[k], c[k])) {
+                s[k] += v;
+            }
+        }
+    }
+    let mut tail = [0.0f64; K];
     for ((a, b), c) in a8
         .remainder()
         .iter()
         .zip(b8.remainder())
         .zip(c8.remainder())
     {
-        tail += f(*a, *b, *c);
-    }
-    let mut acc = [0.0f64; LANES];
-    for ((a, b), c) in a8.zip(b8).zip(c8) {
-        for (k, s) in acc.iter_mut().enumerate() {
-            *s += f(a[k], b[k], c[k]);
+        for (t, v) in tail.iter_mut().zip(f(*a, *b, *c)) {
+            *t += v;
         }
     }
-    combine(acc) + tail
+    core::array::from_fn(|j| combine(acc[j]) + tail[j])
+}
+
+/// `Σ f(a_i, b_i, c_i)` over the common length of the three slices.
+#[inline(always)]
+pub(crate) fn sum3(a: &[f64], b: &[f64], c: &[f64], f: impl Fn(f64, f64, f64) -> f64) -> f64 {
+    let [s] = sums(a, b, c, |a, b, c| [f(a, b, c)]);
+    s
 }
 
 /// Both sums of `f(a_i, b_i) = (u_i, v_i)`, `(Σ u_i, Σ v_i)`, over the common length of the two slices, in one pass.
 #[inline(always)]
 pub(crate) fn sum2_pair(a: &[f64], b: &[f64], f: impl Fn(f64, f64) -> (f64, f64)) -> (f64, f64) {
-    let n = a.len().min(b.len());
-    let (a, b) = (&a[..n], &b[..n]);
-    let (a8, b8) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
-    let (mut tail_u, mut tail_v) = (0.0, 0.0);
-    for (a, b) in a8.remainder().iter().zip(b8.remainder()) {
-        let (u, v) = f(*a, *b);
-        tail_u += u;
-        tail_v += v;
-    }
-    let (mut acc_u, mut acc_v) = ([0.0f64; LANES], [0.0f64; LANES]);
-    for (a, b) in a8.zip(b8) {
-        for k in 0..LANES {
-            let (u, v) = f(a[k], b[k]);
-            acc_u[k] += u;
-            acc_v[k] += v;
-        }
-    }
-    (combine(acc_u) + tail_u, combine(acc_v) + tail_v)
-}
-
-/// `Σ f(a_i, b_i)` over the common length of the two slices.
-#[inline(always)]
-pub(crate) fn sum2(a: &[f64], b: &[f64], f: impl Fn(f64, f64) -> f64) -> f64 {
-    sum3(a, b, b, |a, b, _| f(a, b))
+    let [u, v] = sums(a, b, b, |a, b, _| {
+        let (u, v) = f(a, b);
+        [u, v]
+    });
+    (u, v)
 }
 
 /// `Σ x_i`.
 pub(crate) fn sum(x: &[f64]) -> f64 {
-    sum2(x, x, |v, _| v)
+    sum3(x, x, x, |v, _, _| v)
 }
 
 #[cfg(test)]
@@ -88,9 +85,10 @@ mod tests {
             let serial: f64 = s.iter().sum();
             assert_eq!(sum(s), serial, "n = {n}");
             let sq: f64 = s.iter().map(|v| v * v).sum();
-            assert_eq!(sum2(s, s, |a, b| a * b), sq, "n = {n}");
+            assert_eq!(sum3(s, s, s, |a, b, _| a * b), sq, "n = {n}");
             let lag: f64 = s.windows(2).map(|w| w[0] * w[1]).sum();
-            assert_eq!(sum2(s, s.get(1..).unwrap_or(&[]), |a, b| a * b), lag);
+            let next = s.get(1..).unwrap_or(&[]);
+            assert_eq!(sum3(s, next, next, |a, b, _| a * b), lag);
             let pair = sum2_pair(s, s.get(1..).unwrap_or(&[]), |a, b| (a * a, a * b));
             let sq_head: f64 = s.iter().take(n.saturating_sub(1)).map(|v| v * v).sum();
             assert_eq!(pair, (sq_head, lag), "n = {n}");
