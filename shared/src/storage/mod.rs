@@ -7,16 +7,22 @@
 //! ```text
 //! offset  size  field
 //!      0     4  magic "CAL1" (0x314C4143 little-endian), written last
-//!      4     4  sequence number, u32 LE, +1 per update
+//!      4     4  sequence number, u32 LE, +1 per update (wrapping)
 //!      8     4  payload length L, u32 LE
 //!     12     L  payload: an encoded `CalibrationTable` (which has its own CRC)
 //!   12+L     4  CRC-32C of bytes 0 .. 12+L (magic included)
 //! ```
-//! padded with 0xFF to the flash's write size. Boot loads the valid record with the higher sequence number; an
-//! update erases the *other* slot, writes everything but the magic, then the magic. A cut before the magic is
-//! written leaves that slot without a record; a cut inside an erase leaves garbage that fails the CRC; the old
-//! record is untouched either way. `tests::power_cut_at_every_step_always_loads_a_valid_calibration` cuts power at
-//! every single erase and word write of several consecutive updates.
+//! padded with 0xFF to the flash's write size. Boot loads the newer of the valid records; an update erases the
+//! *other* slot, writes everything but the magic, then the magic. A cut before the magic is written leaves that
+//! slot without a record; a cut inside an erase leaves garbage that fails the CRC; the old record is untouched
+//! either way. `tests::power_cut_at_every_step_always_loads_a_valid_calibration` cuts power at every single erase
+//! and word write of several consecutive updates.
+//!
+//! # Which record is newer
+//! Sequence numbers wrap (0xFFFFFFFF + 1 = 0), so they are compared by serial-number arithmetic (RFC 1982): `b` is
+//! newer than `a` iff `b.wrapping_sub(a)`, read as an `i32`, is positive ([`is_newer`]). Two valid records written
+//! by [`CalStore::store`] always differ by exactly 1, so the rule is never ambiguous for them; records that are
+//! equal or 2³¹ apart (neither newer) count slot A as the newer, in both `load` and `store`.
 
 use crate::calib::CalibrationTable;
 use crate::crc::Crc32c;
@@ -28,6 +34,24 @@ const HEADER_LEN: usize = 12;
 const CRC_LEN: usize = 4;
 /// Bytes read or written per flash call (a multiple of every sane write size).
 const CHUNK: usize = 64;
+
+/// Whether sequence number `b` is newer than `a`: serial-number arithmetic (RFC 1982) on `u32`, so that `0` is
+/// newer than `0xFFFFFFFF`. False if they are equal or exactly 2³¹ apart.
+pub fn is_newer(b: u32, a: u32) -> bool {
+    (b.wrapping_sub(a) as i32) > 0
+}
+
+/// The slot holding the newer of two valid records, and its sequence number (`seqs`: the sequence numbers of
+/// slots A and B, `None` for a slot without a valid record); slot A if neither is newer. `None` if neither slot
+/// holds one.
+fn newest(seqs: [Option<u32>; 2]) -> Option<(usize, u32)> {
+    match seqs {
+        [Some(a), Some(b)] if is_newer(b, a) => Some((1, b)),
+        [Some(a), _] => Some((0, a)),
+        [None, Some(b)] => Some((1, b)),
+        [None, None] => None,
+    }
+}
 
 /// What a slot holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -129,8 +153,8 @@ impl<F: NorFlash> CalStore<F> {
         Ok((SlotState::Valid(seq), len))
     }
 
-    /// Loads the newest valid calibration, or the factory default if no slot holds one. `scratch` must hold an
-    /// encoded table (`calib::encoded_len_max(G)` bytes).
+    /// Loads the newest valid calibration (by [`is_newer`]), or the factory default if no slot holds one.
+    /// `scratch` must hold an encoded table (`calib::encoded_len_max(G)` bytes).
     pub fn load<const G: usize>(&mut self, scratch: &mut [u8]) -> Result<Loaded<G>, F::Error> {
         let mut slots = [SlotState::Empty; 2];
         let mut best: Option<(u32, CalibrationTable<G>)> = None;
@@ -140,7 +164,8 @@ impl<F: NorFlash> CalStore<F> {
             if let SlotState::Valid(seq) = s {
                 match scratch.get(..len).map(CalibrationTable::<G>::decode) {
                     Some(Ok(table)) => {
-                        if best.is_none_or(|(b, _)| seq > b) {
+                        // Slot A is read first: on a tie (neither newer) it stays, as in `newest`.
+                        if best.is_none_or(|(b, _)| is_newer(seq, b)) {
                             best = Some((seq, table));
                         }
                     }
@@ -169,7 +194,7 @@ impl<F: NorFlash> CalStore<F> {
         table: &CalibrationTable<G>,
         scratch: &mut [u8],
     ) -> Result<u32, StoreError<F::Error>> {
-        // Which slot is current (the higher valid sequence number)?
+        // Which slot is current (the newer valid sequence number)?
         let mut seqs = [None; 2];
         for (slot, s) in seqs.iter_mut().enumerate() {
             if let (SlotState::Valid(seq), _) =
@@ -178,12 +203,9 @@ impl<F: NorFlash> CalStore<F> {
                 *s = Some(seq);
             }
         }
-        let (target, seq) = match seqs {
-            [Some(a), Some(b)] if a >= b => (1, a.wrapping_add(1)),
-            [Some(_), Some(b)] => (0, b.wrapping_add(1)),
-            [Some(a), None] => (1, a.wrapping_add(1)),
-            [None, Some(b)] => (0, b.wrapping_add(1)),
-            [None, None] => (0, 1),
+        let (target, seq) = match newest(seqs) {
+            Some((current, s)) => (1 - current, s.wrapping_add(1)),
+            None => (0, 1),
         };
 
         // Build the record in scratch, padded to the write size.

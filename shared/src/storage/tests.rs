@@ -160,6 +160,126 @@ fn updates_alternate_slots_and_the_newest_wins() {
     );
 }
 
+/// Writes a valid record of `table(id)` with sequence number `seq` at the start of `slot` (0 = A, 1 = B), byte for
+/// byte as `store` would, to start from any sequence number without 2³² updates.
+fn put_record(flash: &mut MockFlash, slot: usize, seq: u32, id: u32) {
+    let mut payload = scratch();
+    let len = table(id).encode(&mut payload).unwrap().len();
+    let mut record = Vec::new();
+    record.extend_from_slice(&MAGIC.to_le_bytes());
+    record.extend_from_slice(&seq.to_le_bytes());
+    record.extend_from_slice(&(len as u32).to_le_bytes());
+    record.extend_from_slice(&payload[..len]);
+    let crc = crate::crc::crc32c(&record);
+    record.extend_from_slice(&crc.to_le_bytes());
+    let at = slot * SLOT_BLOCKS * ERASE;
+    flash.mem[at..at + record.len()].copy_from_slice(&record);
+}
+
+#[test]
+fn the_update_after_sequence_number_u32_max_is_the_one_loaded() {
+    // Slot A holds seq 0xFFFFFFFF; the next update is seq 0 in slot B, and it is newer (serial-number arithmetic).
+    let mut flash = MockFlash::new();
+    put_record(&mut flash, 0, u32::MAX, 1);
+    assert_eq!(load(flash.clone()).seq, Some(u32::MAX));
+    let mut store = CalStore::new(flash).unwrap();
+    let mut s = scratch();
+    assert_eq!(store.store(&table(2), &mut s), Ok(0));
+    let l = store.load::<G>(&mut s).unwrap();
+    assert_eq!(
+        (l.table.cal_id, l.seq, l.slots),
+        (
+            2,
+            Some(0),
+            [SlotState::Valid(u32::MAX), SlotState::Valid(0)]
+        )
+    );
+    assert!(l.table == table(2));
+    // The update after that goes to slot A (not over the newest record in B).
+    assert_eq!(store.store(&table(3), &mut s), Ok(1));
+    let l = store.load::<G>(&mut s).unwrap();
+    assert_eq!(
+        (l.table.cal_id, l.seq, l.slots),
+        (3, Some(1), [SlotState::Valid(1), SlotState::Valid(0)])
+    );
+    assert!(l.table == table(3));
+}
+
+#[test]
+fn updates_from_any_sequence_number_alternate_slots_and_the_newest_wins() {
+    // Around 0, the i32 sign boundary and the u32 wrap, from either slot.
+    let starts = [
+        0,
+        1,
+        0x7FFF_FFFE,
+        0x7FFF_FFFF,
+        0x8000_0000,
+        u32::MAX - 2,
+        u32::MAX - 1,
+        u32::MAX,
+    ];
+    for start in starts {
+        for first_slot in 0..2 {
+            let mut flash = MockFlash::new();
+            put_record(&mut flash, first_slot, start, 1);
+            let mut store = CalStore::new(flash).unwrap();
+            let mut s = scratch();
+            let mut slot = first_slot;
+            for k in 1..=4u32 {
+                let id = 1 + k;
+                let seq = start.wrapping_add(k);
+                assert_eq!(
+                    store.store(&table(id), &mut s),
+                    Ok(seq),
+                    "start {start:#x}, update {k}"
+                );
+                slot = 1 - slot;
+                let l = store.load::<G>(&mut s).unwrap();
+                assert!(l.table == table(id), "start {start:#x}, update {k}");
+                assert_eq!(
+                    (l.table.cal_id, l.seq, l.slots[slot], l.slots[1 - slot]),
+                    (
+                        id,
+                        Some(seq),
+                        SlotState::Valid(seq),
+                        SlotState::Valid(seq.wrapping_sub(1))
+                    ),
+                    "start {start:#x}, first slot {first_slot}, update {k}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn sequence_numbers_compare_as_serial_numbers() {
+    assert!(is_newer(1, 0) && is_newer(0, u32::MAX) && is_newer(0x7FFF_FFFF, 0));
+    assert!(is_newer(0x8000_0000, 0x7FFF_FFFF) && is_newer(5, u32::MAX - 5));
+    assert!(!is_newer(0, 1) && !is_newer(u32::MAX, 0) && !is_newer(7, 7));
+    // Exactly 2³¹ apart: neither is newer.
+    assert!(!is_newer(0x8000_0000, 0) && !is_newer(0, 0x8000_0000));
+}
+
+#[test]
+fn records_neither_newer_than_the_other_count_slot_a_in_load_and_store() {
+    // Equal, or 2³¹ apart: load takes slot A, and store (agreeing) writes slot B with A's seq + 1.
+    for b_seq in [5, 0x8000_0005] {
+        let mut flash = MockFlash::new();
+        put_record(&mut flash, 0, 5, 1);
+        put_record(&mut flash, 1, b_seq, 2);
+        let l = load(flash.clone());
+        assert_eq!((l.table.cal_id, l.seq), (1, Some(5)), "B {b_seq:#x}");
+        let mut store = CalStore::new(flash).unwrap();
+        let mut s = scratch();
+        assert_eq!(store.store(&table(3), &mut s), Ok(6));
+        let l = store.load::<G>(&mut s).unwrap();
+        assert_eq!(
+            (l.table.cal_id, l.seq, l.slots),
+            (3, Some(6), [SlotState::Valid(5), SlotState::Valid(6)])
+        );
+    }
+}
+
 #[test]
 fn a_damaged_record_falls_back_to_the_other_slot() {
     let mut store = CalStore::new(MockFlash::new()).unwrap();
@@ -178,9 +298,26 @@ fn a_damaged_record_falls_back_to_the_other_slot() {
 #[test]
 fn power_cut_at_every_step_always_loads_a_valid_calibration() {
     // Three consecutive updates (slot A, B, A again) from an empty flash; power cut at every operation of each.
+    cut_power_at_every_step_of_updates(MockFlash::new(), None, 1..=3);
+}
+
+#[test]
+fn power_cut_at_every_step_across_the_sequence_number_wrap() {
+    // Slot A holds seq 0xFFFFFFFE; three updates (B, A, B) write seqs 0xFFFFFFFF, 0, 1.
     let mut flash = MockFlash::new();
-    let mut previous: Option<CalibrationTable<G>> = None;
-    for id in 1..=3u32 {
+    put_record(&mut flash, 0, u32::MAX - 1, 1);
+    cut_power_at_every_step_of_updates(flash, Some(table(1)), 2..=4);
+}
+
+/// Applies the updates `table(id)` for each of `ids` to `flash` (whose newest table is `previous`), first cutting
+/// power after every possible number of operations of each update: after each cut, boot must load the old or the
+/// new table (the factory default only if there never was a record).
+fn cut_power_at_every_step_of_updates(
+    mut flash: MockFlash,
+    mut previous: Option<CalibrationTable<G>>,
+    ids: core::ops::RangeInclusive<u32>,
+) {
+    for id in ids {
         let new = table(id);
         let mut cuts = 0;
         for budget in 0.. {
