@@ -132,11 +132,19 @@ impl<F: NorFlash> CalStore<F> {
         if word(0) != MAGIC {
             return Ok((SlotState::Empty, 0));
         }
-        let (seq, len) = (word(4), word(8) as usize);
-        let fits = HEADER_LEN + len + CRC_LEN <= self.slot_size as usize;
-        let Some(payload) = scratch.get_mut(..len).filter(|_| fits) else {
+        // The length comes from flash (an erased word reads 0xFFFFFFFF), so it is checked against the slot in u32
+        // with checked arithmetic: `HEADER_LEN + len + CRC_LEN` in usize overflowed on a 32-bit target.
+        let (seq, len) = (word(4), word(8));
+        let fits = len
+            .checked_add((HEADER_LEN + CRC_LEN) as u32)
+            .is_some_and(|end| end <= self.slot_size);
+        let Some(payload) = fits
+            .then_some(len as usize)
+            .and_then(|len| scratch.get_mut(..len))
+        else {
             return Ok((SlotState::Invalid, 0));
         };
+        let len = payload.len();
         let mut crc = Crc32c::new();
         crc.update(&head);
         let mut at = base + HEADER_LEN as u32;

@@ -364,6 +364,41 @@ fn cut_power_at_every_step_of_updates(
 }
 
 #[test]
+fn a_length_word_near_u32_max_is_invalid_on_any_usize() {
+    // A slot whose magic is written but whose length word is still erased (0xFFFFFFFF), or holds any length that
+    // would overflow a 32-bit usize in "header + length + CRC": Invalid, the other slot's record loads, and
+    // `store` (which reads both slots first) writes over the damaged slot. Run with
+    // `cargo test -p shared --target i686-unknown-linux-gnu` to check it on a 32-bit usize.
+    let lengths = [
+        u32::MAX,
+        u32::MAX - 3,
+        u32::MAX - 11,
+        u32::MAX - 15,
+        u32::MAX - 16,
+        0x8000_0000,
+        (SLOT_BLOCKS * ERASE - HEADER_LEN - CRC_LEN + 1) as u32,
+    ];
+    for length in lengths {
+        let mut flash = MockFlash::new();
+        put_record(&mut flash, 0, 7, 1);
+        let b = SLOT_BLOCKS * ERASE;
+        flash.mem[b..b + 4].copy_from_slice(&MAGIC.to_le_bytes());
+        flash.mem[b + 8..b + 12].copy_from_slice(&length.to_le_bytes());
+        let l = load(flash.clone());
+        assert_eq!(
+            (l.table.cal_id, l.seq, l.slots),
+            (1, Some(7), [SlotState::Valid(7), SlotState::Invalid]),
+            "length {length:#x}"
+        );
+        let mut store = CalStore::new(flash).unwrap();
+        let mut s = scratch();
+        assert_eq!(store.store(&table(2), &mut s), Ok(8), "length {length:#x}");
+        let l = store.load::<G>(&mut s).unwrap();
+        assert_eq!((l.table.cal_id, l.seq), (2, Some(8)), "length {length:#x}");
+    }
+}
+
+#[test]
 fn geometry_is_checked() {
     struct Odd;
     impl ErrorType for Odd {
