@@ -479,12 +479,15 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             self.out_seq = self.out_seq.wrapping_add(1);
             self.avg = Averager::NEW;
             self.push(Output::Telemetry(Telemetry::Fused(report)));
-            self.outputs_since_health += 1;
-            if self.config.health_every > 0 && self.outputs_since_health >= self.config.health_every
-            {
-                self.outputs_since_health = 0;
-                let h = self.health();
-                self.push(Output::Telemetry(Telemetry::Health(h)));
+            // Counted only when periodic health is on (health_every == 0: only on request); then the count stays
+            // below health_every ≤ u16::MAX before the increment, so it cannot overflow.
+            if self.config.health_every > 0 {
+                self.outputs_since_health += 1;
+                if self.outputs_since_health >= self.config.health_every {
+                    self.outputs_since_health = 0;
+                    let h = self.health();
+                    self.push(Output::Telemetry(Telemetry::Health(h)));
+                }
             }
         }
     }

@@ -234,6 +234,44 @@ fn backpressure_loses_nothing() {
 }
 
 #[test]
+fn more_than_65536_outputs_without_periodic_health() {
+    // health_every == 0 (health only on request): the u16 count of outputs since the last health report used to
+    // grow without reset and overflowed at output 65,536 (a panic in this overflow-checked test build).
+    const OUTPUTS: u32 = 65_536 + 100;
+    let mut p = Pipeline::new_boxed(PipelineConfig {
+        frames_per_output: 1,
+        health_every: 0,
+        ..PipelineConfig::DEFAULT
+    });
+    let f = frame(0, 15, [0.0; 3], [0.0, 0.0, 1.0], 0.0, &mut Rng::new(9));
+    let (mut fused_reports, mut healths) = (0u32, 0u32);
+    for first in (0..OUTPUTS).step_by(4096) {
+        let bytes: Vec<u8> = (first..(first + 4096).min(OUTPUTS))
+            .flat_map(|i| {
+                let mut g = f;
+                g.seq = i as u16;
+                g.to_bytes()
+            })
+            .collect();
+        for o in run(&mut p, &bytes) {
+            match o {
+                Output::Telemetry(Telemetry::Fused(_)) => fused_reports += 1,
+                Output::Telemetry(Telemetry::Health(_)) => healths += 1,
+                _ => {}
+            }
+        }
+    }
+    assert_eq!((fused_reports, healths), (OUTPUTS, 0));
+    assert_eq!(p.link_counters().frames_dropped, 0);
+    // Health on request still works.
+    let out = command(&mut p, 7, Command::HealthRequest { detail: false });
+    assert!(
+        out.iter()
+            .any(|o| matches!(o, Output::Telemetry(Telemetry::Health(_))))
+    );
+}
+
+#[test]
 fn commands_are_acknowledged_or_rejected_with_a_reason() {
     let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
     assert_eq!(
