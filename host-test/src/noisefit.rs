@@ -45,8 +45,8 @@ fn basis(tau: f64) -> [f64; 4] {
 }
 
 /// Solves the weighted least squares on the terms in `mask`; `None` if singular.
-fn solve(rows: &[([f64; 4], f64, f64)], mask: u8) -> Option<[f64; 4]> {
-    let idx: Vec<usize> = (0..4).filter(|i| mask & (1 << i) != 0).collect();
+fn solve<const K: usize>(rows: &[([f64; K], f64, f64)], mask: u32) -> Option<[f64; K]> {
+    let idx: Vec<usize> = (0..K).filter(|i| mask & (1 << i) != 0).collect();
     let k = idx.len();
     let mut a = vec![vec![0.0; k + 1]; k];
     for (phi, y, w) in rows {
@@ -74,11 +74,37 @@ fn solve(rows: &[([f64; 4], f64, f64)], mask: u8) -> Option<[f64; 4]> {
             }
         }
     }
-    let mut x = [0.0; 4];
+    let mut x = [0.0; K];
     for (r, &i) in idx.iter().enumerate() {
         x[i] = a[r][k] / a[r][r];
     }
     Some(x)
+}
+
+/// Non-negative weighted least squares for `K` ≤ 8 basis functions: rows are (basis values, observation, weight);
+/// every subset of terms is solved and the cheapest all-non-negative solution kept (exact NNLS for a few terms).
+/// `None` if no subset is solvable (no rows, or all-zero bases).
+pub fn nnls<const K: usize>(rows: &[([f64; K], f64, f64)]) -> Option<[f64; K]> {
+    let mut best: Option<(f64, [f64; K])> = None;
+    for mask in 1u32..(1 << K.min(8)) {
+        let Some(c) = solve(rows, mask) else {
+            continue;
+        };
+        if c.iter().any(|&v| v < 0.0 || !v.is_finite()) {
+            continue;
+        }
+        let cost: f64 = rows
+            .iter()
+            .map(|(phi, y, w)| {
+                let m: f64 = phi.iter().zip(&c).map(|(p, c)| p * c).sum();
+                w * (m - y).powi(2)
+            })
+            .sum();
+        if best.is_none_or(|(b, _)| cost < b) {
+            best = Some((cost, c));
+        }
+    }
+    best.map(|(_, c)| c)
 }
 
 /// Fits the four terms to Allan-variance points (points without a finite deviation are skipped).
@@ -95,26 +121,7 @@ pub fn fit(points: &[AnalysisPoint]) -> NoiseFit {
             (basis(p.tau_s), y, edf / 2.0 / (y * y))
         })
         .collect();
-    let mut best: Option<(f64, [f64; 4])> = None;
-    for mask in 1u8..16 {
-        let Some(c) = solve(&rows, mask) else {
-            continue;
-        };
-        if c.iter().any(|&v| v < 0.0) {
-            continue;
-        }
-        let cost: f64 = rows
-            .iter()
-            .map(|(phi, y, w)| {
-                let m: f64 = phi.iter().zip(&c).map(|(p, c)| p * c).sum();
-                w * (m - y).powi(2)
-            })
-            .sum();
-        if best.is_none_or(|(b, _)| cost < b) {
-            best = Some((cost, c));
-        }
-    }
-    let Some((_, c)) = best else {
+    let Some(c) = nnls(&rows) else {
         return NoiseFit::default();
     };
     let mut f = NoiseFit {

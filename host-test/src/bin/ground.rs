@@ -73,9 +73,10 @@ struct DiagnoseArgs {
     /// Weights of the cluster mean.
     #[arg(long, value_enum, default_value = "equal")]
     weights: WeightsArg,
-    /// Minimum number of independent averaging blocks for a tau to count in the gap.
-    #[arg(long, default_value_t = 256)]
-    min_blocks: usize,
+    /// Override: leave out octave tau whose half holds fewer averaging blocks (default: every tau down to 4 blocks,
+    /// each with its own EDF).
+    #[arg(long)]
+    min_blocks: Option<usize>,
     /// MIMU4444 stream: diagnose the longest static interval (found as `calibrate --static` finds poses).
     #[arg(long, conflicts_with = "window")]
     longest_static: bool,
@@ -695,7 +696,7 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
             WeightsArg::Equal => WeightRule::Equal,
             WeightsArg::InverseVariance => WeightRule::InverseVariance,
         },
-        min_blocks: a.min_blocks,
+        min_blocks: a.min_blocks.unwrap_or(Options::default().min_blocks),
         ..Options::default()
     };
     let r = diagnose::diagnose(&loaded.recording, &opts).map_err(anyhow::Error::msg)?;

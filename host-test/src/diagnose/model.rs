@@ -1,19 +1,102 @@
-//! The prediction models of the diagnosis: per-sensor noise models under independence, plus cross terms for the
-//! correlation effects. Everything is an Allan variance, so a model of the weighted mean is exact:
-//! `σ²(τ) = Σ w_i² σ_i²(τ) + Σ_{i≠j} w_i w_j C_ij(τ)`.
+//! The prediction models of the diagnosis. Everything is an Allan variance, so a model of the weighted mean is
+//! exact for any weights: `σ²(τ) = Σ w_i² σ_i²(τ) + Σ_{i≠j} w_i w_j C_ij(τ)`.
+//!
+//! A model is evaluated on a half of the record given that half's **typical** single-sensor Allan variance `V(τ)`
+//! (the bias-corrected median over the sensors, see `docs/diagnose.md`): the √N model has no parameter but that
+//! level, so it is measured where the prediction is checked. Everything an effect adds — per-sensor level factors,
+//! shared shares, thermal coefficients — is fitted on the other half. Sensor i's variance is `q_i·V(τ)`; a shared
+//! process adds `C_ij = s(τ)·√(q_i q_j)·V(τ)` within its members, where the share `s(τ) = S(τ)/(S(τ)+E(τ))` comes
+//! from smooth fits of the shared (S) and independent (E) parts; a thermal bias adds `C_ij = β_i β_j σ²_T(τ)` with
+//! the measured temperature's Allan variance. Expressing shared processes as shares of the measured level makes the
+//! slow processes' own realisation (one drift path per half) cancel in the prediction instead of adding χ²
+//! scatter of a handful of blocks.
 
-use crate::noisefit::NoiseFit;
+use crate::noisefit::FLICKER_AVAR;
+use serde::Serialize;
+
+/// Coefficients of the five Allan-variance terms `[3Q², N², (2 ln2/π)B², K²/3, R²/2]` of
+/// `3Q²/τ² + N²/τ + (2 ln2/π)B² + K²τ/3 + R²τ²/2` (quantisation, white, flicker, random walk, ramp).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Terms(pub [f64; 5]);
+
+impl Terms {
+    /// Basis functions at `tau_s`.
+    pub fn basis(tau_s: f64) -> [f64; 5] {
+        [
+            1.0 / (tau_s * tau_s),
+            1.0 / tau_s,
+            1.0,
+            tau_s,
+            tau_s * tau_s,
+        ]
+    }
+
+    /// Allan variance at `tau_s`.
+    pub fn avar(&self, tau_s: f64) -> f64 {
+        Self::basis(tau_s)
+            .iter()
+            .zip(&self.0)
+            .map(|(b, c)| b * c)
+            .sum()
+    }
+
+    /// Only the terms whose index is in `keep`.
+    pub fn only(&self, keep: &[usize]) -> Terms {
+        let mut t = Terms::default();
+        for &k in keep {
+            if let (Some(d), Some(s)) = (t.0.get_mut(k), self.0.get(k)) {
+                *d = *s;
+            }
+        }
+        t
+    }
+
+    /// The terms in physical units: `{quantization, white, bias_instability, random_walk, ramp}` (Q unit·s, N
+    /// unit/√Hz, B unit, K unit/√s, R unit/s).
+    pub fn physical(&self) -> serde_json::Value {
+        let c = self.0;
+        serde_json::json!({
+            "quantization": (c[0] / 3.0).sqrt(),
+            "white": c[1].sqrt(),
+            "bias_instability": (c[2] / FLICKER_AVAR).sqrt(),
+            "random_walk": (3.0 * c[3]).sqrt(),
+            "ramp": (2.0 * c[4]).sqrt(),
+        })
+    }
+}
+
+/// The share of a typical sensor's Allan variance that a process shared by some sensors accounts for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Share {
+    /// The shared terms this effect models (a subset of `shared_all`).
+    pub part: Terms,
+    /// All shared terms fitted for these members.
+    pub shared_all: Terms,
+    /// The independent part of the members' variance.
+    pub independent: Terms,
+}
+
+impl Share {
+    /// `part(τ) / (shared_all(τ) + independent(τ))`, in [0, 1].
+    pub fn at(&self, tau_s: f64) -> f64 {
+        let den = self.shared_all.avar(tau_s) + self.independent.avar(tau_s);
+        if den > 0.0 {
+            (self.part.avar(tau_s) / den).clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    }
+}
 
 /// A cross term between sensors.
 #[derive(Clone, Debug)]
 pub enum Cross {
-    /// A process shared by `members` (indices into the axis's sensors): `C_ij(τ) = fit.avar(τ)` for i ≠ j both in
-    /// `members`.
+    /// A process shared by `members` (indices into the axis's sensors): `C_ij = s(τ)·√(q_i q_j)·V(τ)`.
     Shared {
         /// Sensors that share it.
         members: Vec<usize>,
-        /// Allan variance of the shared process.
-        fit: NoiseFit,
+        /// Its share of the typical variance.
+        share: Share,
     },
     /// Bias following temperature: sensor i adds `beta_i · T(t)`, so `C_ij(τ) = β_i β_j σ²_T(τ)`.
     Thermal {
@@ -22,59 +105,38 @@ pub enum Cross {
     },
 }
 
-/// The Allan variance of one sensor: a fitted noise model, or measured values at given τ.
-#[derive(Clone, Debug)]
-pub enum Single {
-    /// The four-term model.
-    Fit(NoiseFit),
-    /// Measured (τ s, Allan variance) pairs; looked up at exactly these τ (NaN elsewhere).
-    Table(Vec<(f64, f64)>),
-}
-
-impl Single {
-    /// Allan variance at `tau_s`.
-    pub fn avar(&self, tau_s: f64) -> f64 {
-        match self {
-            Single::Fit(f) => f.avar(tau_s),
-            Single::Table(t) => t
-                .iter()
-                .find(|(x, _)| (x / tau_s - 1.0).abs() < 1e-9)
-                .map_or(f64::NAN, |p| p.1),
-        }
-    }
-}
-
 /// A prediction model of one axis.
 #[derive(Clone, Debug)]
 pub struct Model {
-    /// Allan variance of each sensor.
-    pub singles: Vec<Single>,
+    /// Variance factor of each sensor relative to the typical one (1 for the √N model).
+    pub level: Vec<f64>,
     /// Cross terms.
     pub cross: Vec<Cross>,
 }
 
 impl Model {
-    /// Allan variance of `Σ w_i y_i` at τ; `temp_avar` is the temperature's Allan variance at τ (°C²) when a
-    /// thermal term is present.
-    pub fn avar(&self, w: &[f64], tau_s: f64, temp_avar: Option<f64>) -> f64 {
-        let mut v: f64 = self
-            .singles
-            .iter()
-            .zip(w)
-            .map(|(s, wi)| wi * wi * s.avar(tau_s))
-            .sum();
+    /// The √N model: `n` equal, independent sensors.
+    pub fn independent(n: usize) -> Model {
+        Model {
+            level: vec![1.0; n],
+            cross: Vec::new(),
+        }
+    }
+
+    /// Allan variance of `Σ w_i y_i` at `tau_s`, given the typical single-sensor Allan variance `typical` there
+    /// and the temperature's Allan variance (°C², when a thermal term is present).
+    pub fn avar(&self, w: &[f64], tau_s: f64, typical: f64, temp_avar: Option<f64>) -> f64 {
+        let q = |i: usize| self.level.get(i).copied().unwrap_or(1.0);
+        let wt = |i: usize| w.get(i).copied().unwrap_or(0.0);
+        let mut v: f64 = (0..w.len()).map(|i| wt(i).powi(2) * q(i) * typical).sum();
         for c in &self.cross {
             match c {
-                Cross::Shared { members, fit } => {
-                    let s: f64 = members
-                        .iter()
-                        .map(|&i| w.get(i).copied().unwrap_or(0.0))
-                        .sum();
-                    let s2: f64 = members
-                        .iter()
-                        .map(|&i| w.get(i).copied().unwrap_or(0.0).powi(2))
-                        .sum();
-                    v += (s * s - s2) * fit.avar(tau_s);
+                Cross::Shared { members, share } => {
+                    // Σ_{i≠j} a_i a_j = (Σ a)² − Σ a² with a_i = w_i √q_i.
+                    let a: Vec<f64> = members.iter().map(|&i| wt(i) * q(i).sqrt()).collect();
+                    let s: f64 = a.iter().sum();
+                    let s2: f64 = a.iter().map(|x| x * x).sum();
+                    v += (s * s - s2) * share.at(tau_s) * typical;
                 }
                 Cross::Thermal { beta } => {
                     let s: f64 = beta.iter().zip(w).map(|(b, wi)| b * wi).sum();
@@ -84,5 +146,43 @@ impl Model {
             }
         }
         v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shared_share_reproduces_the_exact_mean_variance() {
+        // 16 equal sensors, a shared process of variance S and independent parts E at some τ: the mean has
+        // S + E/16; the model with share S/(S+E) of the typical S+E must give exactly that.
+        let (s, e) = (3.0, 5.0);
+        let share = Share {
+            part: Terms([0.0, 0.0, s, 0.0, 0.0]),
+            shared_all: Terms([0.0, 0.0, s, 0.0, 0.0]),
+            independent: Terms([0.0, 0.0, e, 0.0, 0.0]),
+        };
+        let m = Model {
+            level: vec![1.0; 16],
+            cross: vec![Cross::Shared {
+                members: (0..16).collect(),
+                share,
+            }],
+        };
+        let w = [1.0 / 16.0; 16];
+        let v = m.avar(&w, 10.0, s + e, None);
+        assert!((v / (s + e / 16.0) - 1.0).abs() < 1e-12, "{v}");
+        // Without the cross term: (S+E)/16.
+        let v0 = Model::independent(16).avar(&w, 10.0, s + e, None);
+        assert!((v0 / ((s + e) / 16.0) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn terms_evaluate_each_power_law() {
+        let t = Terms([1.0, 2.0, 3.0, 4.0, 5.0]);
+        let tau: f64 = 2.0;
+        assert!((t.avar(tau) - (0.25 + 1.0 + 3.0 + 8.0 + 20.0)).abs() < 1e-12);
+        assert_eq!(t.only(&[3, 4]).0, [0.0, 0.0, 0.0, 4.0, 5.0]);
     }
 }

@@ -17,7 +17,10 @@ pub fn text(r: &Report, source: &str) -> String {
     let _ = writeln!(s);
     let _ = writeln!(
         s,
-        "Gap = RMS over axes and octave tau of ln(measured / predicted) cluster deviation."
+        "Gap = excess of ln(measured / predicted) cluster deviation beyond its 2-sigma interval (chi-squared at the\n\
+         Greenhall EDF, the prediction's scatter and 3 % tolerance), RMS over every octave tau down to {} blocks,\n\
+         on the axes whose gap is significant (scan test, p = {}); plain RMS of ln ratio: {:.3} -> {:.3} held-out.",
+        r.min_blocks, r.p_false, r.heldout.rms_before, r.heldout.rms_after
     );
     let _ = writeln!(
         s,
@@ -46,16 +49,29 @@ pub fn text(r: &Report, source: &str) -> String {
         );
         for e in &r.effects {
             let groups = if e.kind == "outlier_sensor" || e.kind == "block_common_mode" {
-                format!(", groups {:?}", e.groups)
+                format!(", groups {}", e.groups)
             } else {
                 String::new()
             };
-            let _ = writeln!(s, "  {} — {} {}{}", e.kind, e.sensor, e.axes, groups);
+            let _ = writeln!(
+                s,
+                "  {} — {} {}{}: acts in the {} region, tau {:.3} … {:.1} s, up to {:.0} % of the cluster variance (tau {:.1} s)",
+                e.kind,
+                e.sensor,
+                e.axes,
+                groups,
+                e.region,
+                e.tau_s[0],
+                e.tau_s[1],
+                100.0 * e.share,
+                e.tau_at_max_s
+            );
             for (axis, p) in &e.params {
                 let mut brief = p.clone();
                 if let Some(o) = brief.as_object_mut() {
                     o.remove("deviation_ratio_to_typical");
                     o.remove("beta");
+                    o.remove("acts");
                 }
                 let _ = writeln!(s, "      {axis}: {brief}");
             }
@@ -107,6 +123,33 @@ pub fn text(r: &Report, source: &str) -> String {
                 reg.points
             );
         }
+        let _ = writeln!(
+            s,
+            "        tau s       blocks  EDF      measured dev  [68 %]                 P0 / model dev          z P0 / model  cross corr (z)"
+        );
+        for t in &a.taus {
+            let _ = writeln!(
+                s,
+                "        {:>10.3} {:>7} {:>8.1}  {:>10.3e} [{:.3e}, {:.3e}]  {:.3e} / {:.3e}  {:+6.1} / {:+5.1}  {:+.4} ({:+.1})",
+                t.tau_s,
+                t.blocks,
+                t.edf,
+                t.dev,
+                t.dev_lo,
+                t.dev_hi,
+                t.predicted_before,
+                t.predicted_after,
+                t.z_before,
+                t.z_after,
+                t.cross_correlation,
+                t.cross_z
+            );
+        }
+        let _ = writeln!(
+            s,
+            "        independence (held-out cross covariance): chi2 {:.1} on {} points, p = {:.2e}",
+            a.independence.chi2, a.independence.points, a.independence.p_value
+        );
     }
     s
 }

@@ -75,7 +75,7 @@ fn common_mode_white_is_found_on_the_gyros_only() {
         (
             cm[0].sensor.as_str(),
             cm[0].axes.as_str(),
-            cm[0].groups.len()
+            cm[0].groups.flat().len()
         ),
         ("gyro", "xyz", 16)
     );
@@ -95,4 +95,70 @@ fn common_mode_white_is_found_on_the_gyros_only() {
         gx.rms_gain
     );
     assert!(r.effects.iter().all(|e| e.sensor == "gyro"));
+}
+
+#[test]
+fn chi2_z_is_exact_for_two_degrees_of_freedom() {
+    // χ²₂/2 has CDF 1 − e^(−x): the z-score of ratio r is Φ⁻¹(1 − e^(−r)), in both tails.
+    use statrs::distribution::{ContinuousCDF, Normal};
+    let n = Normal::new(0.0, 1.0).unwrap();
+    for r in [0.01f64, 0.3, 1.0, 2.5, 9.0, 30.0] {
+        // Each tail computed where it is accurate: P(X ≤ r) = −expm1(−r), P(X > r) = e^(−r).
+        let want = if r > 1.0 {
+            -n.inverse_cdf((-r).exp())
+        } else {
+            n.inverse_cdf(-(-r).exp_m1())
+        };
+        assert!((chi2_z(r, 2.0) - want).abs() < 1e-6, "r {r}");
+    }
+    // Far in the upper tail (p = e^−60) the value is still exact, not clamped.
+    let far = -n.inverse_cdf((-60.0f64).exp());
+    assert!((chi2_z(60.0, 2.0) - far).abs() < 1e-4);
+}
+
+#[test]
+fn median_of_variance_estimates_is_corrected_to_their_mean() {
+    // The median of χ²₂ is 2 ln 2.
+    assert!((median_to_mean(2.0) - 1.0 / std::f64::consts::LN_2).abs() < 1e-9);
+    assert!((median_to_mean(1e4) - 1.0).abs() < 1e-3);
+}
+
+#[test]
+fn scan_of_one_point_is_the_normal_quantile() {
+    // One z-score: the statistic is z itself, so the Monte Carlo threshold is Φ⁻¹(1 − p) (40,000 draws).
+    use statrs::distribution::{ContinuousCDF, Normal};
+    let want = Normal::new(0.0, 1.0).unwrap().inverse_cdf(0.99);
+    assert!((scan_threshold(1, 0.01) - want).abs() < 0.05);
+    // More points, more windows: a higher threshold.
+    assert!(scan_threshold(16, 0.01) > scan_threshold(4, 0.01) + 0.2);
+    // Windows: a two-point bump is found as one window.
+    let z = [0.0, 0.0, 3.0, 3.0, 0.0];
+    let var = 2.0 + 2.0 * octave_corr(1);
+    assert!((scan_statistic(&z) - 6.0 / var.sqrt()).abs() < 1e-12);
+}
+
+#[test]
+fn blocks_are_found_by_clustering_the_correlation() {
+    // 12 sensors of white noise; sensors 0–3 and 4–7 each share a process (ρ 0.3); 8–11 are independent.
+    let n = 40_000;
+    let mut g = gauss(77);
+    let shared: Vec<Vec<f64>> = (0..2).map(|_| (0..n).map(|_| g()).collect()).collect();
+    let series: Vec<Vec<f64>> = (0..12)
+        .map(|i| {
+            let mut r = gauss(100 + i as u64);
+            (0..n)
+                .map(|k| match i / 4 {
+                    b @ (0 | 1) => 0.3f64.sqrt() * shared[b][k] + 0.7f64.sqrt() * r(),
+                    _ => r(),
+                })
+                .collect()
+        })
+        .collect();
+    let refs: Vec<&[f64]> = series.iter().map(Vec::as_slice).collect();
+    let ac = AllanCov::compute(&refs, 1.0, 30);
+    let cl: Vec<Vec<usize>> = blocks(&ac, Options::default().merge_z)
+        .into_iter()
+        .filter(|c| c.len() >= 2)
+        .collect();
+    assert_eq!(cl, vec![vec![0, 1, 2, 3], vec![4, 5, 6, 7]]);
 }

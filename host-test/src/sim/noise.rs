@@ -854,7 +854,7 @@ fn signed_unit<R: Rng + ?Sized>(rng: &mut R) -> f64 {
 /// A standard normal variate: 256-layer ziggurat on one 64-bit draw (low 8 bits: layer; high 52 bits: a
 /// signed uniform in [−1, 1) built directly in the mantissa); ≈ 1 % of draws take the exact wedge or tail branch.
 #[inline]
-pub(crate) fn normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
+pub fn normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
     let z = ziggurat();
     loop {
         let bits = rng.next_u64();
