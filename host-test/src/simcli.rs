@@ -245,44 +245,66 @@ pub fn frame_opts(rate_hz: f64, base_rate_hz: f64) -> FrameOpts {
     }
 }
 
-/// Runs a simulation into an in-memory [`Recording`] (physical values, °/s and g; `temp_c` with a thermal effect).
-pub fn recording(cfg: SimConfig) -> Result<crate::formats::Recording> {
-    use crate::formats::csv::{Column, SensorKind};
-    let n = cfg.samples as usize;
-    let with_temp = cfg.thermal.is_some();
-    let mut sim = Simulator::new(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut rec = crate::formats::Recording {
-        t_s: Vec::with_capacity(n),
-        temp_c: with_temp.then(|| Vec::with_capacity(n)),
-        columns: Vec::new(),
-    };
-    for g in 0..crate::sim::GROUPS {
-        for a in Axis::ALL {
-            let kind = if a.is_gyro() {
-                SensorKind::Gyro
-            } else {
-                SensorKind::Accel
-            };
-            rec.columns.push(Column {
-                group: g,
-                kind,
-                axis: a.index() % 3,
-                data: Vec::with_capacity(n),
-            });
+/// Collects a simulation's chunks into an in-memory [`Recording`](crate::formats::Recording) (physical values,
+/// °/s and g; `temp_c` when the simulation has a thermal effect), as it streams.
+pub struct RecordingSink {
+    rec: crate::formats::Recording,
+}
+
+impl RecordingSink {
+    /// An empty recording with room for `samples` rows of the 16 groups × 6 axes.
+    pub fn new(samples: usize, with_temp: bool) -> Self {
+        use crate::formats::csv::{Column, SensorKind};
+        let mut rec = crate::formats::Recording {
+            t_s: Vec::with_capacity(samples),
+            temp_c: with_temp.then(|| Vec::with_capacity(samples)),
+            columns: Vec::new(),
+        };
+        for g in 0..crate::sim::GROUPS {
+            for a in Axis::ALL {
+                let kind = if a.is_gyro() {
+                    SensorKind::Gyro
+                } else {
+                    SensorKind::Accel
+                };
+                rec.columns.push(Column {
+                    group: g,
+                    kind,
+                    axis: a.index() % 3,
+                    data: Vec::with_capacity(samples),
+                });
+            }
         }
+        Self { rec }
     }
-    let mut chunk = Chunk::default();
-    while sim.next_chunk(&mut chunk) > 0 {
-        rec.t_s.extend_from_slice(&chunk.t_s[..chunk.len]);
-        if let Some(t) = &mut rec.temp_c {
+
+    /// Appends a chunk's rows.
+    pub fn push(&mut self, chunk: &Chunk) {
+        let rows = &chunk.phys[..chunk.len];
+        self.rec.t_s.extend_from_slice(&chunk.t_s[..chunk.len]);
+        if let Some(t) = &mut self.rec.temp_c {
             t.extend_from_slice(&chunk.temp_c[..chunk.len]);
         }
-        for (k, col) in rec.columns.iter_mut().enumerate() {
+        for (k, col) in self.rec.columns.iter_mut().enumerate() {
             let (g, a) = (k / 6, k % 6);
-            col.data
-                .extend(chunk.phys[..chunk.len].iter().map(|p| p[g][a]));
+            col.data.extend(rows.iter().map(|p| p[g][a]));
         }
     }
-    rec.columns.sort_by_key(|c| (c.kind, c.group, c.axis));
-    Ok(rec)
+
+    /// The recording, columns ordered as the CSV reader orders them.
+    pub fn finish(mut self) -> crate::formats::Recording {
+        self.rec.columns.sort_by_key(|c| (c.kind, c.group, c.axis));
+        self.rec
+    }
+}
+
+/// Runs a simulation into an in-memory [`Recording`](crate::formats::Recording) (see [`RecordingSink`]).
+pub fn recording(cfg: SimConfig) -> Result<crate::formats::Recording> {
+    let mut sink = RecordingSink::new(cfg.samples as usize, cfg.thermal.is_some());
+    let mut sim = Simulator::new(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut chunk = Chunk::default();
+    while sim.next_chunk(&mut chunk) > 0 {
+        sink.push(&chunk);
+    }
+    Ok(sink.finish())
 }
