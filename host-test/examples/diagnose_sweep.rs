@@ -38,6 +38,29 @@ fn main() {
         kind: DriftKind::RandomWalk { k: 1.5e-4 },
     });
     cases.push(("drift gy", c));
+    let mut c = base(seed + 1);
+    c.drift.push(CommonDrift {
+        groups: None,
+        axes: vec![Axis::GyroY],
+        kind: DriftKind::RandomWalk { k: 1.5e-4 },
+    });
+    c.thermal = Some(thermal([0.0; 6], [0.0; 6]));
+    cases.push(("drift gy (temp, no thermal)", c));
+    let mut c = base(seed + 10);
+    c.thermal = Some(thermal([0.0; 6], [0.0; 6]));
+    cases.push(("none (temp)", c));
+    let mut c = base(seed + 11);
+    for b in 0..4 {
+        let g: Vec<usize> = (4 * b..4 * b + 4).collect();
+        c.common.push(CommonMode::block(
+            &format!("f{b}"),
+            &g,
+            &Axis::ALL[..3],
+            0.0,
+            0.4,
+        ));
+    }
+    cases.push(("blocks 4x4 gyro flicker only", c));
     let mut c = base(seed + 2);
     c.thermal = Some(thermal(
         [0.0, 0.0, 0.0, 1.5e-4, 2.5e-4, 1.5e-4],

@@ -781,26 +781,28 @@ fn shared_fit(
     Some((shared_rows, Terms([e[0], e[1], e[2], e[3], 0.0])))
 }
 
-/// Blocks of sensors from the Allan correlation matrix: average-linkage clustering, merging two clusters while
-/// their mean cross correlation exceeds `merge_z` times its null standard deviation
-/// `√(1.5/T)·√(D_A D_B/(|A||B|))` (T the differences summed over the levels used; 1.5 accounts for adjacent
-/// differences' correlation; `D = 1 + (|A|−1)ρ̄_A` the design effect of a cluster whose members share a process).
-fn blocks(ac: &AllanCov, merge_z: f64) -> Vec<Vec<usize>> {
+/// Blocks of sensors from the Allan correlation matrix averaged over `levels` (level, weight): average-linkage
+/// clustering, merging two clusters while their mean cross correlation exceeds `merge_z` times its null standard
+/// deviation `√(Σ w_l²·1.5/T_l)·√(D_A D_B/(|A||B|))` (w normalised, T_l the level's differences; 1.5 accounts for
+/// adjacent differences' correlation; `D = 1 + (|A|−1)ρ̄_A` the design effect of a cluster whose members share a
+/// process).
+fn blocks(ac: &AllanCov, levels: &[(usize, f64)], merge_z: f64) -> Vec<Vec<usize>> {
     let n = ac.n;
-    let levels: Vec<usize> = (0..ac.tau_s.len()).filter(|&l| ac.terms[l] >= 30).collect();
-    let total: f64 = levels.iter().map(|&l| ac.terms[l] as f64).sum();
+    let total: f64 = levels.iter().map(|&(_, w)| w).sum();
     let mut clusters: Vec<Vec<usize>> = (0..n).map(|i| vec![i]).collect();
     if total <= 0.0 || n < 2 {
         return clusters;
     }
     let mut r = vec![0.0; n * n];
-    for &l in &levels {
-        let wl = ac.terms[l] as f64 / total;
+    let mut var = 0.0;
+    for &(l, w) in levels {
+        let wl = w / total;
         for (x, c) in r.iter_mut().zip(ac.correlation(l)) {
             *x += wl * c;
         }
+        var += wl * wl * 1.5 / ac.terms.get(l).copied().unwrap_or(1).max(1) as f64;
     }
-    let sd = (1.5 / total).sqrt();
+    let sd = var.sqrt();
     // Mean correlation within a cluster (0 for a single sensor).
     let within = |c: &[usize]| -> f64 {
         let (mut s, mut k) = (0.0, 0usize);
@@ -1152,6 +1154,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
             &hf,
             tau0,
             temp.map(|t| &t[..half]),
+            &typ_terms,
             opts,
         );
         let hw = Half::measure(
@@ -1386,6 +1389,7 @@ impl Gaps {
 }
 
 /// The candidates of one axis, all fitted on the first half.
+#[allow(clippy::too_many_arguments)] // the first half's data, statistics and model, each used; no natural bundle
 fn candidates(
     an: &mut Analyzer,
     w: &AxisWork,
@@ -1393,6 +1397,7 @@ fn candidates(
     hf: &Half,
     tau0: f64,
     temp: Option<&[f64]>,
+    typ: &Terms,
     opts: &Options,
 ) -> Vec<Candidate> {
     let ns = first.len();
@@ -1447,12 +1452,31 @@ fn candidates(
     // Blocks: clusters of the Allan correlation matrix that are not the whole cluster.
     // With equal weights a set of blocks and one cluster-wide process of the same total cross covariance predict
     // the same cluster variance, so the held-out gap cannot tell them apart: the structure decides which is offered.
+    // Two bands: every level weighted by its differences (the white region dominates), then, if no sensors
+    // cluster there, the flicker and random-walk levels weighted equally (a block sharing only a slow process).
     let cl: Vec<Vec<usize>> = if ns >= 4 {
         let ac = AllanCov::compute(first, tau0, 30);
-        blocks(&ac, opts.merge_z)
-            .into_iter()
-            .filter(|c| c.len() >= 2)
-            .collect()
+        let all: Vec<(usize, f64)> = (0..ac.tau_s.len())
+            .filter(|&l| ac.terms[l] >= 30)
+            .map(|l| (l, ac.terms[l] as f64))
+            .collect();
+        let slow: Vec<(usize, f64)> = all
+            .iter()
+            .filter(|&&(l, _)| matches!(region_name(typ, ac.tau_s[l]), "flicker" | "random_walk"))
+            .map(|&(l, _)| (l, 1.0))
+            .collect();
+        let found = |levels: &[(usize, f64)]| -> Vec<Vec<usize>> {
+            blocks(&ac, levels, opts.merge_z)
+                .into_iter()
+                .filter(|c| c.len() >= 2)
+                .collect()
+        };
+        let fast = found(&all);
+        if fast.is_empty() && !slow.is_empty() {
+            found(&slow)
+        } else {
+            fast
+        }
     } else {
         Vec::new()
     };

@@ -156,7 +156,11 @@ fn blocks_are_found_by_clustering_the_correlation() {
         .collect();
     let refs: Vec<&[f64]> = series.iter().map(Vec::as_slice).collect();
     let ac = AllanCov::compute(&refs, 1.0, 30);
-    let cl: Vec<Vec<usize>> = blocks(&ac, Options::default().merge_z)
+    let levels: Vec<(usize, f64)> = (0..ac.tau_s.len())
+        .filter(|&l| ac.terms[l] >= 30)
+        .map(|l| (l, ac.terms[l] as f64))
+        .collect();
+    let cl: Vec<Vec<usize>> = blocks(&ac, &levels, Options::default().merge_z)
         .into_iter()
         .filter(|c| c.len() >= 2)
         .collect();
