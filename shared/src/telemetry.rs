@@ -244,7 +244,8 @@ pub fn encode<'a, T: Serialize>(msg: &T, buf: &'a mut [u8]) -> Result<&'a [u8], 
     let n = postcard::to_slice(msg, rest)
         .map_err(|_| BufferTooSmall)?
         .len();
-    buf.get(..1 + n).ok_or(BufferTooSmall)
+    // The version byte and n bytes of body: `..=n`.
+    buf.get(..=n).ok_or(BufferTooSmall)
 }
 
 /// Reads a message written by [`encode`].
