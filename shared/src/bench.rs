@@ -44,9 +44,10 @@ impl BenchFrames {
                 *s ^= *s >> 7;
                 *s ^= *s << 17;
                 // The high half, reduced in 32 bits (a hardware divide on the Cortex-M4, not a 64-bit library call).
-                let noise =
-                    i64::from((*s >> 32) as u32 % (2 * NOISE_CODES + 1)) - i64::from(NOISE_CODES);
-                *code = (rest + noise).clamp(0, i64::from(u16::MAX)) as u16;
+                // In [0, 2·NOISE_CODES]: the subtraction cannot wrap; the sum saturates before the clamp.
+                let noise = i64::from((*s >> 32) as u32 % (2 * NOISE_CODES + 1))
+                    .wrapping_sub(i64::from(NOISE_CODES));
+                *code = rest.saturating_add(noise).clamp(0, i64::from(u16::MAX)) as u16;
             }
         }
         let frame = FrameRepr {
