@@ -11,6 +11,7 @@
 //!            FPGA_CTRL ──► fpga_ctrl_loop ──► FPGA TX      PERSIST ──► storage_loop ──► flash
 //! ```
 
+use core::num::NonZeroU64;
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
@@ -310,8 +311,9 @@ pub async fn watchdog_loop<L: OutputPin>(
         }
         if all {
             feed();
+            let period_ms = NonZeroU64::new(period.as_millis()).unwrap_or(NonZeroU64::MIN);
             let _ = led.set_state(
-                (Instant::now().as_millis() / period.as_millis().max(1))
+                (Instant::now().as_millis() / period_ms)
                     .is_multiple_of(2)
                     .into(),
             );

@@ -42,7 +42,11 @@ impl<F: NorFlash> FlashWindow<F> {
     pub fn new(inner: F, base: u32, len: u32) -> Self {
         let erase = F::ERASE_SIZE as u32;
         assert!(len > 0 && base.is_multiple_of(erase) && len.is_multiple_of(erase));
-        assert!(base as usize + len as usize <= inner.capacity());
+        assert!(
+            (base as usize)
+                .checked_add(len as usize)
+                .is_some_and(|end| end <= inner.capacity())
+        );
         Self { inner, base, len }
     }
 
@@ -53,7 +57,9 @@ impl<F: NorFlash> FlashWindow<F> {
         if end > self.len as usize {
             return Err(WindowError::OutOfBounds);
         }
-        Ok(self.base + offset)
+        self.base
+            .checked_add(offset)
+            .ok_or(WindowError::OutOfBounds)
     }
 }
 
@@ -79,18 +85,15 @@ impl<F: NorFlash> NorFlash for FlashWindow<F> {
     const ERASE_SIZE: usize = F::ERASE_SIZE;
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
-        if from > to {
-            return Err(WindowError::OutOfBounds);
-        }
+        let len = to.checked_sub(from).ok_or(WindowError::OutOfBounds)?;
         if !(from as usize).is_multiple_of(Self::ERASE_SIZE)
             || !(to as usize).is_multiple_of(Self::ERASE_SIZE)
         {
             return Err(WindowError::NotAligned);
         }
-        let abs = self.check(from, (to - from) as usize)?;
-        self.inner
-            .erase(abs, abs + (to - from))
-            .map_err(WindowError::Flash)
+        let abs = self.check(from, len as usize)?;
+        let abs_end = abs.checked_add(len).ok_or(WindowError::OutOfBounds)?;
+        self.inner.erase(abs, abs_end).map_err(WindowError::Flash)
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {

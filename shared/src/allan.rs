@@ -81,8 +81,7 @@ impl Sum128 {
 /// `a²` as (low, high) 64-bit halves: one widening multiply on 64-bit targets.
 #[cfg(target_pointer_width = "64")]
 fn square_wide(a: u64) -> (u64, u64) {
-    let p = u128::from(a) * u128::from(a);
-    (p as u64, (p >> 64) as u64)
+    a.carrying_mul(a, 0)
 }
 
 /// `a²` as (low, high) 64-bit halves, from 32 × 32 → 64-bit products (`UMULL` on the Cortex-M4; a `u128`
@@ -90,13 +89,20 @@ fn square_wide(a: u64) -> (u64, u64) {
 #[cfg(any(test, not(target_pointer_width = "64")))]
 fn square_wide_halves(a: u64) -> (u64, u64) {
     let (hi, lo) = (a >> 32, a & 0xFFFF_FFFF);
+    // hi, lo < 2³²: each product below is < 2⁶⁴ and cannot wrap.
+    let lo2 = lo.wrapping_mul(lo);
     if hi == 0 {
-        return (lo * lo, 0);
+        return (lo2, 0);
     }
     // a² = hi²·2⁶⁴ + 2·hi·lo·2³² + lo²; 2·hi·lo·2³² = mid·2³³ spans both halves.
-    let mid = hi * lo;
-    let (low, carry) = (lo * lo).overflowing_add(mid << 33);
-    (low, hi * hi + (mid >> 31) + u64::from(carry))
+    let mid = hi.wrapping_mul(lo);
+    let (low, carry) = lo2.overflowing_add(mid << 33);
+    // The sum is the high half of a² < 2¹²⁸, so it (and every partial sum) is < 2⁶⁴: cannot wrap.
+    let high = hi
+        .wrapping_mul(hi)
+        .wrapping_add(mid >> 31)
+        .wrapping_add(u64::from(carry));
+    (low, high)
 }
 
 #[cfg(not(target_pointer_width = "64"))]
@@ -115,10 +121,11 @@ struct Step {
 
 impl Step {
     fn new(index: u64) -> Self {
-        let depth = ((index.trailing_ones() + 1) as usize).min(LEVELS);
+        // Levels below the last one touched: ≤ LEVELS − 1, so `+ 1` cannot wrap.
+        let below = (index.trailing_ones() as usize).min(LEVELS - 1);
         Self {
-            depth,
-            last_has_prev: index >> (depth - 1) > 0,
+            depth: below.wrapping_add(1),
+            last_has_prev: index >> below > 0,
         }
     }
 }
@@ -140,6 +147,11 @@ impl Level {
 
 /// Adds sample `x` to `levels` = the levels its step completes (the last one differenced only if
 /// `last_has_prev`). Inlined with a constant length, the loop unrolls.
+///
+/// Plain `+`/`−`, so that builds with overflow checks (the tests, also on i686) keep checking the bound: level k holds
+/// block sums |S| ≤ 2^(31+k) (`levels` ≤ [`LEVELS`] = 24 long), so |d| ≤ 2^(32+k) < 2⁶³ and the next level's block,
+/// a sum of two, ≤ 2^(32+k) too; the squares' sums are bounded in the module docs.
+#[allow(clippy::arithmetic_side_effects)]
 #[inline(always)]
 fn push_into(levels: &mut [Level], x: i32, last_has_prev: bool) {
     let () = DIFF_FITS_I64;
@@ -197,7 +209,8 @@ impl AllanAccumulator {
             return false;
         }
         let step = Step::new(self.samples);
-        self.samples += 1;
+        // < MAX_SAMPLES = 2³² (just checked): cannot wrap.
+        self.samples = self.samples.wrapping_add(1);
         self.push_levels(x, step);
         true
     }
@@ -227,7 +240,8 @@ impl AllanAccumulator {
                 3 => Self::push_all::<3>(accs, xs, step),
                 _ => {
                     for (acc, &x) in accs.iter_mut().zip(xs) {
-                        acc.samples = index + 1;
+                        // index < MAX_SAMPLES (checked above): cannot wrap.
+                        acc.samples = index.wrapping_add(1);
                         acc.push_levels(x, step);
                     }
                 }
@@ -243,7 +257,8 @@ impl AllanAccumulator {
     #[inline(always)]
     fn push_all<const D: usize>(accs: &mut [Self], xs: &[i32], step: Step) {
         for (acc, &x) in accs.iter_mut().zip(xs) {
-            acc.samples += 1;
+            // < MAX_SAMPLES (this function's precondition, checked by `push_each`): cannot wrap.
+            acc.samples = acc.samples.wrapping_add(1);
             if let Some((levels, _)) = acc.levels.split_first_chunk_mut::<D>() {
                 push_into(levels, x, step.last_has_prev);
             }
@@ -269,7 +284,16 @@ impl AllanAccumulator {
     }
 }
 
+// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
+// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies.
 #[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing,
+    clippy::arithmetic_side_effects
+)]
 mod tests {
     use super::*;
     extern crate std;

@@ -10,6 +10,9 @@
 
 const POLY_REFLECTED: u32 = 0x82F6_3B78;
 
+// Indexing in a constant's initialiser runs in the compiler: an index out of range fails the build, it cannot panic
+// on board (and `i < 256`, `k < 8` bound every index here).
+#[allow(clippy::indexing_slicing)]
 const TABLE: [u32; 256] = {
     let mut table = [0u32; 256];
     let mut i = 0;
@@ -32,6 +35,8 @@ const TABLE: [u32; 256] = {
 
 /// `SLICES[k][b]`: the CRC contribution of byte b followed by k zero bytes (`SLICES[0]` = `TABLE`).
 #[cfg(target_pointer_width = "64")]
+// Evaluated by the compiler, as `TABLE`: an index out of range would fail the build.
+#[allow(clippy::indexing_slicing)]
 const SLICES: [[u32; 256]; 8] = {
     let mut t = [[0u32; 256]; 8];
     t[0] = TABLE;
@@ -48,11 +53,17 @@ const SLICES: [[u32; 256]; 8] = {
     t
 };
 
+/// `table[i]`. A `u8` index is always < 256, so the `None` arm is never taken (the optimiser removes it: this is
+/// one load).
+#[inline(always)]
+fn lookup(table: &[u32; 256], i: u8) -> u32 {
+    table.get(usize::from(i)).copied().unwrap_or(0)
+}
+
 /// One byte per step.
 fn update_bytewise(mut crc: u32, bytes: &[u8]) -> u32 {
     for &b in bytes {
-        // `(crc ^ b) as u8` is < 256: the index cannot fail.
-        crc = (crc >> 8) ^ TABLE[usize::from((crc as u8) ^ b)];
+        crc = (crc >> 8) ^ lookup(&TABLE, (crc as u8) ^ b);
     }
     crc
 }
@@ -66,9 +77,17 @@ fn update_sliced(mut crc: u32, bytes: &[u8]) -> u32 {
             continue;
         };
         let x = u64::from_le_bytes(w) ^ u64::from(crc);
-        // Byte j of the word is followed by 7 − j more bytes of this step. Indices are masked to 8 bits.
-        let t = |k: usize, shift: u32| SLICES[k][((x >> shift) & 0xFF) as usize];
-        crc = t(7, 0) ^ t(6, 8) ^ t(5, 16) ^ t(4, 24) ^ t(3, 32) ^ t(2, 40) ^ t(1, 48) ^ t(0, 56);
+        // Byte j of the word is followed by 7 − j more bytes of this step.
+        let [s0, s1, s2, s3, s4, s5, s6, s7] = &SLICES;
+        let t = |table: &[u32; 256], shift: u32| lookup(table, (x >> shift) as u8);
+        crc = t(s7, 0)
+            ^ t(s6, 8)
+            ^ t(s5, 16)
+            ^ t(s4, 24)
+            ^ t(s3, 32)
+            ^ t(s2, 40)
+            ^ t(s1, 48)
+            ^ t(s0, 56);
     }
     update_bytewise(crc, words.remainder())
 }
@@ -115,7 +134,16 @@ pub fn crc32c(bytes: &[u8]) -> u32 {
     c.finish()
 }
 
+// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
+// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies.
 #[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing,
+    clippy::arithmetic_side_effects
+)]
 mod tests {
     use super::*;
 

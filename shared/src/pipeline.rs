@@ -31,6 +31,7 @@ use crate::telemetry::{
 use crate::wire::frame::GROUPS;
 use crate::wire::{Decoded, FpgaControl, FrameClock, FrameDecoder, LinkCounters};
 use core::borrow::BorrowMut;
+use core::num::{NonZeroU64, NonZeroU128};
 
 /// Allan channels of the calibrated sensor axes: group g, axis a → channel 6g + a.
 pub const SENSOR_CHANNELS: usize = GROUPS * AXES;
@@ -116,18 +117,28 @@ impl Averager {
         t_us: 0,
     };
 
+    /// Adds one frame's fused sample.
+    ///
+    /// Plain arithmetic, so that builds with overflow checks keep checking the bound: an interval holds at most
+    /// `frames_per_output` ≤ `u16::MAX` frames (`process` reports and resets it when it is full), so `frames`,
+    /// `valid` and `temp_n` stay ≤ 65535, |`sum`| ≤ 65535 · 2³¹ < 2⁴⁸ and |`temp_sum`| ≤ 65535 · 2¹⁵ < 2³¹.
+    #[allow(clippy::arithmetic_side_effects)]
     fn add(&mut self, s: &FusedSample, temp_cdeg: Option<i16>, t_us: u64) {
         if self.frames == 0 {
             self.t_us = t_us;
         }
         self.frames += 1;
-        for a in 0..AXES {
-            if let (Some(&used), Some(&x)) = (s.used.get(a), s.axes.get(a))
-                && used > 0
-            {
-                self.sum[a] += i64::from(x);
-                self.valid[a] += 1;
-                self.used_min[a] = self.used_min[a].min(used);
+        for (((sum, valid), used_min), (&used, &x)) in self
+            .sum
+            .iter_mut()
+            .zip(&mut self.valid)
+            .zip(&mut self.used_min)
+            .zip(s.used.iter().zip(&s.axes))
+        {
+            if used > 0 {
+                *sum += i64::from(x);
+                *valid += 1;
+                *used_min = (*used_min).min(used);
             }
         }
         self.health.merge(&s.health);
@@ -138,23 +149,27 @@ impl Averager {
     }
 
     fn report(&self, seq: u32) -> FusedReport {
-        let mean: [i32; AXES] = core::array::from_fn(|a| match self.valid[a] {
-            0 => 0,
-            n => div_round(self.sum[a], i64::from(n)),
-        });
+        let mut mean = [0i32; AXES];
+        let mut used = [0u8; AXES];
+        for ((((m, u), &sum), &valid), &used_min) in mean
+            .iter_mut()
+            .zip(&mut used)
+            .zip(&self.sum)
+            .zip(&self.valid)
+            .zip(&self.used_min)
+        {
+            if valid > 0 {
+                (*m, *u) = (div_round(sum, i64::from(valid)), used_min);
+            }
+        }
+        let [rx, ry, rz, ax, ay, az] = mean;
         FusedReport {
             seq,
             t_us: self.t_us,
             frames: self.frames,
-            rate_udps: [mean[0], mean[1], mean[2]],
-            accel_ug: [mean[3], mean[4], mean[5]],
-            used: core::array::from_fn(|a| {
-                if self.valid[a] == 0 {
-                    0
-                } else {
-                    self.used_min[a]
-                }
-            }),
+            rate_udps: [rx, ry, rz],
+            accel_ug: [ax, ay, az],
+            used,
             health: self.health,
             temp_cdeg: (self.temp_n > 0)
                 .then(|| div_round(i64::from(self.temp_sum), i64::from(self.temp_n)) as i16),
@@ -305,8 +320,12 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 
     /// Sample interval of the Allan accumulators, ps (`None` before the first frame).
     pub fn tau0_ps(&self) -> Option<u64> {
-        let n = u128::from(self.clock.decimation()?) + 1;
-        Some((n * 1_000_000_000_000_000 / u128::from(self.config.fpga_base_rate_mhz.max(1))) as u64)
+        // n ≤ 2¹⁶, so n · 10¹⁵ < 2⁶⁷: cannot wrap; a rate of 0 counts as 1 mHz.
+        let n = u128::from(self.clock.decimation()?).wrapping_add(1);
+        let rate = NonZeroU128::from(
+            NonZeroU64::new(self.config.fpga_base_rate_mhz).unwrap_or(NonZeroU64::MIN),
+        );
+        Some((n.wrapping_mul(1_000_000_000_000_000) / rate) as u64)
     }
 
     /// The fused sample of the last frame processed.
@@ -323,7 +342,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// left in `input`, when the outbox is nearly full: call [`Self::poll`] until it returns `None`, then call
     /// again with the rest. Nothing is lost either way.
     pub fn push_link(&mut self, input: &mut &[u8]) {
-        while self.outbox.capacity() - self.outbox.len() >= OUTPUTS_PER_FRAME {
+        while self.outbox.capacity().saturating_sub(self.outbox.len()) >= OUTPUTS_PER_FRAME {
             match self.decoder.decode(input) {
                 Some(d) => self.process(&d),
                 None => return,
@@ -360,18 +379,20 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// without ever delaying the FPGA link.
     pub fn poll_dump(&mut self) -> Option<Telemetry> {
         if let Some(group) = self.cursor.faults {
-            let next = group + 1;
-            self.cursor.faults = (usize::from(next) < GROUPS).then_some(next);
+            self.cursor.faults = group
+                .checked_add(1)
+                .filter(|&next| usize::from(next) < GROUPS);
             if let Some([gyro, accel]) = self.fusion.fault_counts(usize::from(group)) {
                 return Some(Telemetry::Faults(FaultReport { group, gyro, accel }));
             }
         }
         while let Some((channel, level, end)) = self.cursor.allan {
-            let (next_channel, next_level) = if usize::from(level) + 1 < LEVELS {
-                (channel, level + 1)
-            } else {
-                (channel + 1, 0)
-            };
+            // channel < end ≤ ALLAN_CHANNELS < 255: the saturating add never saturates (and would end the dump).
+            let (next_channel, next_level) =
+                match level.checked_add(1).filter(|&l| usize::from(l) < LEVELS) {
+                    Some(next_level) => (channel, next_level),
+                    None => (channel.saturating_add(1), 0),
+                };
             self.cursor.allan = (next_channel < end).then_some((next_channel, next_level, end));
             let tau0_ps = self.tau0_ps().unwrap_or(0);
             let Some(acc) = self.allan.borrow().0.get(usize::from(channel)) else {
@@ -482,7 +503,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             // Counted only when periodic health is on (health_every == 0: only on request); then the count stays
             // below health_every ≤ u16::MAX before the increment, so it cannot overflow.
             if self.config.health_every > 0 {
-                self.outputs_since_health += 1;
+                self.outputs_since_health = self.outputs_since_health.saturating_add(1);
                 if self.outputs_since_health >= self.config.health_every {
                     self.outputs_since_health = 0;
                     let h = self.health();
@@ -530,10 +551,10 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 if offset != u.received {
                     return Err(Reject::CalOffset(u.received));
                 }
-                let end = usize::from(offset) + data.len();
-                if end > usize::from(u.len) {
-                    return Err(Reject::CalOverflow);
-                }
+                let end = usize::from(offset)
+                    .checked_add(data.len())
+                    .filter(|&end| end <= usize::from(u.len))
+                    .ok_or(Reject::CalOverflow)?;
                 u.buf
                     .get_mut(usize::from(offset)..end)
                     .ok_or(Reject::CalOverflow)?
@@ -558,7 +579,9 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 self.push(Output::PersistCalibration);
             }
             Command::AllanRequest { first, count } => {
-                let end = (usize::from(first) + usize::from(count)).min(ALLAN_CHANNELS);
+                let end = usize::from(first)
+                    .saturating_add(usize::from(count))
+                    .min(ALLAN_CHANNELS);
                 if usize::from(first) >= ALLAN_CHANNELS || count == 0 {
                     return Err(Reject::BadArgument);
                 }
@@ -582,7 +605,24 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     }
 }
 
+// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
+// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies.
 #[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing,
+    clippy::arithmetic_side_effects
+)]
 mod golden;
+// Test code, as `golden`.
 #[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing,
+    clippy::arithmetic_side_effects
+)]
 mod tests;

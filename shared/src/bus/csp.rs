@@ -120,9 +120,11 @@ impl<'a> CspPacket<'a> {
             return Err(CspError::TooShort);
         }
         let header = CspHeader::parse(frame)?;
-        let (body, crc) = frame.split_at(frame.len() - CRC_LEN);
+        let (body, crc) = frame
+            .split_last_chunk::<CRC_LEN>()
+            .ok_or(CspError::TooShort)?;
         let payload = body.get(HEADER_LEN..).unwrap_or(&[]);
-        if crc32c(payload).to_be_bytes() != crc {
+        if crc32c(payload).to_be_bytes() != *crc {
             return Err(CspError::Crc);
         }
         let unsupported = header.flags & (FLAG_HMAC | FLAG_XTEA | FLAG_RDP);
@@ -130,12 +132,10 @@ impl<'a> CspPacket<'a> {
             return Err(CspError::Unsupported(unsupported));
         }
         let payload = if header.flags & FLAG_CRC32 != 0 {
-            let n = payload
-                .len()
-                .checked_sub(CRC_LEN)
+            let (data, inner) = payload
+                .split_last_chunk::<CRC_LEN>()
                 .ok_or(CspError::InnerCrc)?;
-            let (data, inner) = payload.split_at(n);
-            if crc32c(data).to_be_bytes() != inner {
+            if crc32c(data).to_be_bytes() != *inner {
                 return Err(CspError::InnerCrc);
             }
             data

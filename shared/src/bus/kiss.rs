@@ -32,9 +32,9 @@ pub enum KissError {
     BufferTooSmall,
 }
 
-/// Largest encoded size of a frame of `n` bytes.
+/// Largest encoded size of a frame of `n` bytes (saturating: no buffer is `usize::MAX` bytes long).
 pub const fn encoded_len_max(n: usize) -> usize {
-    3 + 2 * n
+    n.saturating_mul(2).saturating_add(3)
 }
 
 /// Writes one frame holding `parts` (concatenated) into `out`; returns the encoded length.
@@ -61,7 +61,8 @@ struct Writer<'a> {
 impl Writer<'_> {
     fn put(&mut self, b: u8) -> Result<(), KissError> {
         *self.out.get_mut(self.at).ok_or(KissError::BufferTooSmall)? = b;
-        self.at += 1;
+        // `at` < `out.len()` here: cannot wrap.
+        self.at = self.at.wrapping_add(1);
         Ok(())
     }
 
@@ -167,7 +168,8 @@ impl<const N: usize> KissDecoder<N> {
         match self.buf.get_mut(self.len) {
             Some(slot) => {
                 *slot = b;
-                self.len += 1;
+                // `len` < N here: cannot wrap.
+                self.len = self.len.wrapping_add(1);
                 None
             }
             None => {

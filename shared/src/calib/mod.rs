@@ -76,25 +76,35 @@ pub struct GroupCal {
     pub accel_bias_q12: [i32; ACCEL_RAW],
 }
 
-/// Rounds `acc / 2^shift` to the nearest integer, halves away from zero, saturating to `i32`.
+/// Rounds `acc / 2^shift` to the nearest integer, halves away from zero, saturating to `i32` (`shift` < 64).
 fn round_shift_sat(acc: i64, shift: u32) -> i32 {
-    let half = 1u64 << (shift - 1);
+    // 2^(shift − 1), and 0 for shift = 0.
+    let half = (1u64 << shift) >> 1;
     // Branch-free (the sign of a sensor output at rest is a coin toss): round |acc|, then restore the sign
-    // (s = 0 or −1, (q ^ s) − s = ±q).
+    // (s = 0 or −1, (q ^ s) − s = ±q). |acc| ≤ 2⁶³ and half ≤ 2⁶²: the sum cannot wrap. The subtraction wraps
+    // only for q = 2⁶³ (acc = i64::MIN, shift = 0), where the wrapped i64::MIN is the right result.
     let s = acc >> 63;
-    let q = ((acc.unsigned_abs() + half) >> shift) as i64;
-    ((q ^ s) - s).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+    let q = (acc.unsigned_abs().wrapping_add(half) >> shift) as i64;
+    (q ^ s)
+        .wrapping_sub(s)
+        .clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }
 
 fn affine<const N: usize>(m: &[[i32; N]; 3], b: &[i32; N], raw: &[i32; N]) -> [i32; 3] {
     const LIMIT: i64 = 1 << 29;
+    // The sum of N products below stays under 2⁶³ for N ≤ 4 (4 raw gyro channels, 3 accelerometer channels).
+    const { assert!(N <= 4) };
     // |d| ≤ 2²⁹ fits in i32, so that every product is one 32 × 32 → 64-bit multiply (SMLAL on the Cortex-M4).
-    let d: [i32; N] = core::array::from_fn(|j| {
-        ((i64::from(raw[j]) << FRAC_BITS) - i64::from(b[j])).clamp(-LIMIT, LIMIT) as i32
-    });
+    // |raw · 2¹²| < 2⁴³ and |b| ≤ 2³¹: the difference cannot wrap.
+    let mut d = [0i32; N];
+    for ((dj, &rj), &bj) in d.iter_mut().zip(raw).zip(b) {
+        *dj =
+            ((i64::from(rj) << FRAC_BITS).wrapping_sub(i64::from(bj))).clamp(-LIMIT, LIMIT) as i32;
+    }
     m.map(|row| {
+        // |m_ij · d_j| ≤ 2³¹ · 2²⁹ = 2⁶⁰, and a sum of N ≤ 4 of them is < 2⁶²: cannot wrap.
         let acc = row.iter().zip(&d).fold(0i64, |acc, (&mij, &dj)| {
-            acc + i64::from(mij) * i64::from(dj)
+            acc.wrapping_add(i64::from(mij).wrapping_mul(i64::from(dj)))
         });
         round_shift_sat(acc, 2 * FRAC_BITS)
     })
@@ -165,5 +175,14 @@ pub mod board {
     };
 }
 
+// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
+// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies.
 #[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing,
+    clippy::arithmetic_side_effects
+)]
 mod tests;

@@ -14,8 +14,11 @@ const CRC_LEN: usize = 4;
 
 /// Upper bound of the encoded length of a table of `groups` groups (postcard varints at their longest).
 pub const fn encoded_len_max(groups: usize) -> usize {
-    // version (3) + group count (2) + id (5) + rails (2 × 5) + 28 i32 per group (5 each) + CRC
-    3 + 2 + 5 + 10 + groups * 28 * 5 + CRC_LEN
+    // version (3) + group count (2) + id (5) + rails (2 × 5) + 28 i32 per group (5 each) + CRC; saturating (no
+    // buffer is `usize::MAX` bytes long)
+    groups
+        .saturating_mul(28 * 5)
+        .saturating_add(3 + 2 + 5 + 10 + CRC_LEN)
 }
 
 /// Why a calibration table could not be encoded or decoded.
@@ -79,16 +82,19 @@ impl<const G: usize> CalibrationTable<G> {
             .map_err(|_| CalError::BufferTooSmall)?
             .len();
         let tail = buf.get_mut(head_len..).ok_or(CalError::BufferTooSmall)?;
-        let body_len = head_len
-            + postcard::to_slice(self, tail)
-                .map_err(|_| CalError::BufferTooSmall)?
-                .len();
+        let body_len = postcard::to_slice(self, tail)
+            .map_err(|_| CalError::BufferTooSmall)?
+            .len()
+            .checked_add(head_len)
+            .ok_or(CalError::BufferTooSmall)?;
         let crc = crc32c(buf.get(..body_len).ok_or(CalError::BufferTooSmall)?);
-        buf.get_mut(body_len..body_len + CRC_LEN)
+        let len = body_len
+            .checked_add(CRC_LEN)
+            .ok_or(CalError::BufferTooSmall)?;
+        buf.get_mut(body_len..len)
             .ok_or(CalError::BufferTooSmall)?
             .copy_from_slice(&crc.to_le_bytes());
-        buf.get(..body_len + CRC_LEN)
-            .ok_or(CalError::BufferTooSmall)
+        buf.get(..len).ok_or(CalError::BufferTooSmall)
     }
 
     /// Reads a table written by [`Self::encode`], checking CRC, version, group count and bias range.

@@ -21,12 +21,13 @@
 //! interval keep that drift far below the noise, and `FusionMode::Equal` removes it entirely.
 
 use crate::calib::{AXES, CalibrationTable, RawCounts};
+use core::num::NonZeroU64;
 use serde::{Deserialize, Serialize};
 
 /// Most groups a fusion can handle (fault masks are `u32` bitmasks).
 pub const MAX_GROUPS: usize = 32;
 /// 1.4826 · 2¹⁶: MAD → σ of a normal distribution, Q16.
-const MAD_TO_SIGMA_Q16: i64 = 97_163;
+const MAD_TO_SIGMA_Q16: u64 = 97_163;
 
 /// How the used sensors are averaged.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -191,7 +192,12 @@ impl NoiseEst {
     };
 
     /// Averages in `Δr²/2` for the new residual `resid` (`last_resid` valid) with weight 2^−`shift`;
-    /// `round` = 2^`shift` − 1.
+    /// `round` = 2^`shift` − 1 (`shift` ≤ 31).
+    ///
+    /// Plain arithmetic, so that builds with overflow checks keep checking the bound: `sample` ≤ [`VAR_LIMIT`] = 2⁴⁷,
+    /// and `var` stays in [0, 2⁴⁷] (it starts at 0 and each update moves it toward a `sample`, not past it), so
+    /// `diff`, `step` and the new `var` lie in [−2⁴⁷, 2⁴⁷] and `diff + round` < 2⁴⁸: nothing overflows `i64`.
+    #[allow(clippy::arithmetic_side_effects)]
     fn update(&mut self, resid: i32, shift: u32, round: i64) {
         // min(d²/2, VAR_LIMIT) with VAR_LIMIT = 2⁴⁷ = (2²⁴)²/2 equals (min(|d|, 2²⁴))²/2: one 32 × 32 → 64-bit
         // multiply (UMULL on the Cortex-M4) instead of a 64-bit square and compare.
@@ -260,6 +266,11 @@ impl AxisScale {
     };
 
     /// Averages `mad` in; returns the averaged scale (output units, rounded up).
+    ///
+    /// Plain arithmetic, so that builds with overflow checks keep checking the bound: `mad` is an `i32` MAD, so
+    /// |x| < 2⁴⁷; `mad_q16` starts at such an x and each update moves it toward the next one, not past it, so it stays
+    /// within ±2⁴⁷ and every sum here is < 2⁴⁹ in magnitude.
+    #[allow(clippy::arithmetic_side_effects)]
     fn update(&mut self, mad: i64) -> i64 {
         let x = mad << 16;
         if self.init {
@@ -300,12 +311,16 @@ pub struct Fusion<const G: usize> {
     weights_ready: bool,
 }
 
-/// `num / den` rounded half away from zero, saturated to `i32`; `den` > 0.
+/// `num / den` rounded half away from zero, saturated to `i32`; 0 for `den` ≤ 0 (callers pass `den` > 0).
 pub(crate) fn div_round(num: i64, den: i64) -> i32 {
-    let half = den / 2;
+    let Some(den) = u64::try_from(den).ok().and_then(NonZeroU64::new) else {
+        return 0;
+    };
+    let half = den.get() / 2;
     // Branch-free: divide |num|, then restore the sign (s = 0 or −1, (q ^ s) − s = ±q).
     let s = num >> 63;
-    let q = ((num.unsigned_abs() + half as u64) / den as u64) as i64;
+    // |num| ≤ 2⁶³ and half < 2⁶³: the sum cannot wrap.
+    let q = (num.unsigned_abs().wrapping_add(half) / den) as i64;
     (q ^ s)
         .wrapping_sub(s)
         .clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
@@ -313,14 +328,14 @@ pub(crate) fn div_round(num: i64, den: i64) -> i32 {
 
 /// Median of a non-empty sorted slice (mean of the middle two for even length, rounded as `div_round`).
 fn median_sorted(v: &[i32]) -> i32 {
-    let n = v.len();
-    match (v.get(n / 2), n % 2) {
-        (Some(&hi), 1) => hi,
-        (Some(&hi), _) => div_round(
-            i64::from(v.get(n / 2 - 1).copied().unwrap_or(hi)) + i64::from(hi),
-            2,
-        ),
-        (None, _) => 0,
+    let (below, above) = v.split_at_checked(v.len() / 2).unwrap_or((v, &[]));
+    match (below.last(), above.first()) {
+        // The sum of two `i32` cannot wrap in `i64`.
+        (Some(&lo), Some(&hi)) if v.len().is_multiple_of(2) => {
+            div_round(i64::from(lo).wrapping_add(i64::from(hi)), 2)
+        }
+        (_, Some(&hi)) => hi,
+        (_, None) => 0,
     }
 }
 
@@ -332,6 +347,12 @@ fn median_sorted(v: &[i32]) -> i32 {
 /// t = h + 1 smallest deviations are A_0..i and B_0..t−i for the smallest i with A_i ≥ B_{t−i−1} (a monotone
 /// predicate: binary search); the largest two of them are the middle one and, for even n, the one before it.
 /// Branch-free: every lookup loads from a clamped index and selects ±∞ past the ends.
+///
+/// Plain arithmetic, so that builds with overflow checks keep checking the bounds: indices are ≤ 2h + 1 ≤ n + 1 ≤ 33
+/// (`n` ≤ G ≤ 32); in the subtractions j < h, half ≥ 1 and lo ≤ h < t. A_j and B_j are differences of two `i32`
+/// (|·| ≤ 2³²) or ±∞, and ±∞ only enter comparisons: `cur` and `prev` are never −∞ (B is never −∞ where it is read,
+/// and for even n ≥ 2 `prev` ≥ B_(h−1) when lo = 0), so the final sum adds two values in [−2³², 2³¹).
+#[allow(clippy::arithmetic_side_effects)]
 fn mad_sorted<const G: usize>(v: &[i32; G], n: usize, median: i32) -> i32 {
     let n = n.min(G);
     if n == 0 {
@@ -339,7 +360,8 @@ fn mad_sorted<const G: usize>(v: &[i32; G], n: usize, median: i32) -> i32 {
     }
     let (h, m) = (n / 2, i64::from(median));
     let t = h + 1;
-    let at = |i: usize| i64::from(v[i.min(G - 1)]);
+    // G ≥ 1 (`Fusion::FITS`): the clamped index is in range and the fallback is never used.
+    let at = |i: usize| v.get(i.min(G - 1)).map_or(0, |&x| i64::from(x));
     // A_j and B_j, +∞ past their ends.
     let a = |j: usize| {
         if j < h {
@@ -537,7 +559,7 @@ impl<const G: usize> Fusion<G> {
     ) -> FusedSample {
         let mut out = FusedSample::default();
         // Sensor-level exclusion, bitmasks over groups per kind [gyro, accel].
-        let stuck_repeats = u32::from(self.config.stuck_window.max(2)) - 1;
+        let stuck_repeats = u32::from(self.config.stuck_window.max(2)).saturating_sub(1);
         let (raw_min, raw_max) = (table.raw_min, table.raw_max);
         let (mut sat, mut stuck) = ([0u32; 2], [0u32; 2]);
         for (g, (r, watch)) in raw.iter().zip(self.raw.iter_mut()).enumerate() {
@@ -551,28 +573,36 @@ impl<const G: usize> Fusion<G> {
                 .zip(watch.repeats.iter_mut())
                 .enumerate()
             {
-                // Branch-free: + 1 (saturating) where the code repeats, 0 where it changed.
-                *repeats =
-                    (*repeats + 1).min(u16::MAX.into()) & u32::from(code == *last).wrapping_neg();
+                // Branch-free: + 1 (saturating) where the code repeats, 0 where it changed. `repeats` ≤ u16::MAX (this
+                // `min`, every sample): the increment cannot wrap.
+                *repeats = repeats.wrapping_add(1).min(u16::MAX.into())
+                    & u32::from(code == *last).wrapping_neg();
                 *last = code;
                 ch_stuck |= u32::from(*repeats >= stuck_repeats) << ch;
                 // = table.saturated(code)
                 ch_sat |= u32::from(code <= raw_min || code >= raw_max) << ch;
             }
-            for (kind, channels) in [GYRO_CHANNELS, ACCEL_CHANNELS].into_iter().enumerate() {
-                sat[kind] |= u32::from(ch_sat & channels != 0) << g;
-                stuck[kind] |= u32::from(ch_stuck & channels != 0) << g;
+            for ((sat, stuck), channels) in sat
+                .iter_mut()
+                .zip(stuck.iter_mut())
+                .zip([GYRO_CHANNELS, ACCEL_CHANNELS])
+            {
+                *sat |= u32::from(ch_sat & channels != 0) << g;
+                *stuck |= u32::from(ch_stuck & channels != 0) << g;
             }
         }
         let mut excluded = [0u32; 2];
         if self.config.robust {
-            for (kind, faults) in [&mut out.health.gyro, &mut out.health.accel]
-                .into_iter()
-                .enumerate()
+            for (((faults, excluded), &sat), &stuck) in
+                [&mut out.health.gyro, &mut out.health.accel]
+                    .into_iter()
+                    .zip(excluded.iter_mut())
+                    .zip(&sat)
+                    .zip(&stuck)
             {
-                faults.saturated = sat[kind];
-                faults.stuck = stuck[kind] & !sat[kind];
-                excluded[kind] = sat[kind] | stuck[kind];
+                faults.saturated = sat;
+                faults.stuck = stuck & !sat;
+                *excluded = sat | stuck;
             }
         }
 
@@ -589,12 +619,17 @@ impl<const G: usize> Fusion<G> {
             .zip(out.used_mask.iter_mut())
             .enumerate()
         {
+            // 0 = gyro, 1 = accelerometer: the `get`s below never miss (as `a` < AXES for `axes[g]`).
             let kind = usize::from(a >= 3);
-            let column: [i32; G] = core::array::from_fn(|g| axes[g][a]);
+            let column: [i32; G] =
+                core::array::from_fn(|g| axes.get(g).and_then(|x| x.get(a)).copied().unwrap_or(0));
+            let candidates = Self::ALL & !excluded.get(kind).copied().unwrap_or(0);
             let (n, fused, out_mask, mask) =
-                self.fuse_axis(a, &column, Self::ALL & !excluded[kind], kind, recompute);
+                self.fuse_axis(a, &column, candidates, kind, recompute);
             (*value, *used, *used_mask) = (fused, n, mask);
-            outlier[kind] |= out_mask;
+            if let Some(o) = outlier.get_mut(kind) {
+                *o |= out_mask;
+            }
         }
         out.health.gyro.outlier = outlier[0];
         out.health.accel.outlier = outlier[1];
@@ -603,7 +638,8 @@ impl<const G: usize> Fusion<G> {
             let mut any = h.any();
             while any != 0 {
                 let g = any.trailing_zeros();
-                any &= any - 1;
+                // Clears the lowest set bit; `any` ≠ 0, so this cannot wrap.
+                any &= any.wrapping_sub(1);
                 if let Some(c) = self
                     .faults
                     .get_mut(g as usize)
@@ -636,12 +672,9 @@ impl<const G: usize> Fusion<G> {
             return (0, 0, 0, 0);
         }
         // Candidates sorted, then padding that sorts after them.
-        let mut sorted: [i32; G] = core::array::from_fn(|g| {
-            if candidates >> g & 1 != 0 {
-                x[g]
-            } else {
-                i32::MAX
-            }
+        let mut sorted: [i32; G] = core::array::from_fn(|g| match x.get(g) {
+            Some(&v) if candidates >> g & 1 != 0 => v,
+            _ => i32::MAX,
         });
         sort_small(&mut sorted);
         let median = median_sorted(sorted.get(..n).unwrap_or(&[]));
@@ -654,22 +687,27 @@ impl<const G: usize> Fusion<G> {
                 .scale
                 .get_mut(a)
                 .map_or(0, |s| s.update(i64::from(mad_sorted(&sorted, n, median))));
-            // |x − med| > k · 1.4826 · scale  ⇔  |x − med| · 2²⁴ > k_q8 · scale · 1.4826_q16; for a limit L ≥ 0 and
-            // integer distances that is |x − med| > ⌊L / 2²⁴⌋ (a negative L, possible only by wrapping, passes all).
-            let limit_q24 = i64::from(self.config.outlier_sigmas_q8) * scale * MAD_TO_SIGMA_Q16;
+            // |x − med| > k · 1.4826 · scale  ⇔  |x − med| · 2²⁴ > k_q8 · scale · 1.4826_q16; for the limit L ≥ 0 and
+            // integer distances that is |x − med| > ⌊L / 2²⁴⌋. The scale is a MAD: ≥ 0 and < 2³¹ (the clamp only
+            // states it), so L < 2¹⁶ · 2³¹ · 2¹⁷ = 2⁶⁴ fits `u64` for every configuration: the products cannot wrap.
+            let scale = scale.clamp(0, i64::from(i32::MAX)) as u64;
+            let limit_q24 = u64::from(self.config.outlier_sigmas_q8)
+                .wrapping_mul(scale)
+                .wrapping_mul(MAD_TO_SIGMA_Q16);
             let floor = i64::from(self.config.outlier_floor.get(kind).copied().unwrap_or(0));
-            let threshold = if limit_q24 >= 0 {
-                floor.max(limit_q24 >> 24)
-            } else {
-                floor
-            };
+            // ⌊L / 2²⁴⌋ < 2⁴⁰: the cast is exact.
+            let threshold = floor.max((limit_q24 >> 24) as i64);
             if threshold < 0 {
                 outliers = candidates;
             } else {
-                // |x − med| > t  ⇔  (x − med + t) ∉ [0, 2t]  ⇔  (x − med + t) as u64 > 2t, for t ≥ 0.
-                let (offset, span) = (threshold - med, 2 * threshold as u64);
+                // |x − med| > t  ⇔  (x − med + t) ∉ [0, 2t]  ⇔  (x − med + t) as u64 > 2t, for t ≥ 0. Here
+                // 0 ≤ t < 2⁴⁰ and |med|, |x| ≤ 2³¹: none of these sums wraps.
+                let (offset, span) = (
+                    threshold.wrapping_sub(med),
+                    (threshold as u64).wrapping_mul(2),
+                );
                 for (g, &v) in x.iter().enumerate() {
-                    outliers |= u32::from((i64::from(v) + offset) as u64 > span) << g;
+                    outliers |= u32::from(i64::from(v).wrapping_add(offset) as u64 > span) << g;
                 }
                 outliers &= candidates;
             }
@@ -678,7 +716,8 @@ impl<const G: usize> Fusion<G> {
 
         // Noise estimates of the sensors used.
         let shift = u32::from(self.config.noise_shift.min(31));
-        let (round, settled) = ((1i64 << shift) - 1, 1u32 << shift);
+        // shift ≤ 31: 2^shift − 1 ≥ 0 cannot wrap.
+        let (round, settled) = ((1i64 << shift).wrapping_sub(1), 1u32 << shift);
         let valid = state.resid_valid;
         // Whether every used estimate has settled matters only for weighted means.
         let weighted_mode = self.config.mode == FusionMode::InverseVariance;
@@ -686,7 +725,8 @@ impl<const G: usize> Fusion<G> {
         let mut rest = used;
         while rest != 0 {
             let g = rest.trailing_zeros() as usize;
-            rest &= rest - 1;
+            // Clears the lowest set bit; `rest` ≠ 0, so this cannot wrap.
+            rest &= rest.wrapping_sub(1);
             let (Some(e), Some(&v)) = (state.est.get_mut(g), x.get(g)) else {
                 break;
             };
@@ -709,7 +749,8 @@ impl<const G: usize> Fusion<G> {
                 .fold(u64::MAX, |m, (_, e)| m.min(e.var.max(1)));
             for (g, (w, e)) in state.weight_q16.iter_mut().zip(&state.est).enumerate() {
                 if candidates >> g & 1 != 0 {
-                    *w = ((var_min << 16) / e.var.max(1)).clamp(1, 1 << 16) as u32;
+                    let var = NonZeroU64::new(e.var).unwrap_or(NonZeroU64::MIN);
+                    *w = ((var_min << 16) / var).clamp(1, 1 << 16) as u32;
                 }
             }
             self.weights_ready = true;
@@ -718,6 +759,9 @@ impl<const G: usize> Fusion<G> {
         // The mean over the used sensors.
         let (mut num, mut den) = (0i64, 0i64);
         if all_settled {
+            // Plain arithmetic, so that builds with overflow checks keep checking the bound: every weight is in
+            // [1, 2¹⁶] (set so above, or the initial 2¹⁶), so |w · x| ≤ 2⁴⁷ and the sums of G ≤ 32 terms are < 2⁵³.
+            #[allow(clippy::arithmetic_side_effects)]
             for (g, (&v, &w)) in x.iter().zip(&state.weight_q16).enumerate() {
                 // w ≤ 2¹⁶: w · x is an i32 × i32 product.
                 let w = (w & (used >> g & 1).wrapping_neg()) as i32;
@@ -726,7 +770,8 @@ impl<const G: usize> Fusion<G> {
             }
         } else {
             for (g, &v) in x.iter().enumerate() {
-                num += i64::from(v & (used >> g & 1).wrapping_neg() as i32);
+                // G ≤ 32 values of `i32`: |num| ≤ 2³⁶, cannot wrap.
+                num = num.wrapping_add(i64::from(v & (used >> g & 1).wrapping_neg() as i32));
             }
             den = i64::from(used.count_ones());
         }
@@ -737,5 +782,14 @@ impl<const G: usize> Fusion<G> {
     }
 }
 
+// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
+// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies.
 #[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing,
+    clippy::arithmetic_side_effects
+)]
 mod tests;

@@ -95,19 +95,20 @@ pub struct CalStore<F> {
 }
 
 impl<F: NorFlash> CalStore<F> {
-    /// Uses the whole of `flash`: slot A its first half, slot B its second.
+    /// Uses the whole of `flash`: slot A its first half, slot B its second. The region must be addressable with
+    /// `u32` offsets (as `NorFlash` addresses it), so that no offset computed in a slot can wrap.
     pub fn new(flash: F) -> Result<Self, StoreError<F::Error>> {
-        let slot_size = flash.capacity() / 2;
+        let Ok(capacity) = u32::try_from(flash.capacity()) else {
+            return Err(StoreError::Geometry);
+        };
+        let slot_size = capacity / 2;
         if slot_size == 0
-            || !slot_size.is_multiple_of(F::ERASE_SIZE)
+            || !(slot_size as usize).is_multiple_of(F::ERASE_SIZE)
             || !CHUNK.is_multiple_of(F::WRITE_SIZE.max(1))
         {
             return Err(StoreError::Geometry);
         }
-        Ok(Self {
-            flash,
-            slot_size: slot_size as u32,
-        })
+        Ok(Self { flash, slot_size })
     }
 
     /// Gives the flash back.
@@ -128,13 +129,16 @@ impl<F: NorFlash> CalStore<F> {
         let base = self.base(slot);
         let mut head = [0u8; HEADER_LEN];
         self.flash.read(base, &mut head)?;
-        let word = |i: usize| u32::from_le_bytes([head[i], head[i + 1], head[i + 2], head[i + 3]]);
-        if word(0) != MAGIC {
+        let [m0, m1, m2, m3, s0, s1, s2, s3, l0, l1, l2, l3] = head;
+        if u32::from_le_bytes([m0, m1, m2, m3]) != MAGIC {
             return Ok((SlotState::Empty, 0));
         }
         // The length comes from flash (an erased word reads 0xFFFFFFFF), so it is checked against the slot in u32
         // with checked arithmetic: `HEADER_LEN + len + CRC_LEN` in usize overflowed on a 32-bit target.
-        let (seq, len) = (word(4), word(8));
+        let (seq, len) = (
+            u32::from_le_bytes([s0, s1, s2, s3]),
+            u32::from_le_bytes([l0, l1, l2, l3]),
+        );
         let fits = len
             .checked_add((HEADER_LEN + CRC_LEN) as u32)
             .is_some_and(|end| end <= self.slot_size);
@@ -147,11 +151,12 @@ impl<F: NorFlash> CalStore<F> {
         let len = payload.len();
         let mut crc = Crc32c::new();
         crc.update(&head);
-        let mut at = base + HEADER_LEN as u32;
+        // Offsets stay below base + slot_size ≤ capacity < 2³² (`new`; `fits` above): the sums cannot wrap.
+        let mut at = base.wrapping_add(HEADER_LEN as u32);
         for chunk in payload.chunks_mut(CHUNK) {
             self.flash.read(at, chunk)?;
             crc.update(chunk);
-            at += chunk.len() as u32;
+            at = at.wrapping_add(chunk.len() as u32);
         }
         let mut stored = [0u8; CRC_LEN];
         self.flash.read(at, &mut stored)?;
@@ -212,7 +217,8 @@ impl<F: NorFlash> CalStore<F> {
             }
         }
         let (target, seq) = match newest(seqs) {
-            Some((current, s)) => (1 - current, s.wrapping_add(1)),
+            Some((0, s)) => (1, s.wrapping_add(1)),
+            Some((_, s)) => (0, s.wrapping_add(1)),
             None => (0, 1),
         };
 
@@ -221,36 +227,57 @@ impl<F: NorFlash> CalStore<F> {
             let body = scratch.get_mut(HEADER_LEN..).ok_or(StoreError::Encode)?;
             table.encode(body).map_err(|_| StoreError::Encode)?.len()
         };
-        let end = HEADER_LEN + len + CRC_LEN;
-        let padded = end.div_ceil(F::WRITE_SIZE.max(1)) * F::WRITE_SIZE.max(1);
-        if padded > self.slot_size as usize {
+        // Header, payload and CRC, padded: the record must fit the slot (so `len` fits `u32`).
+        let Some(padded) = len
+            .checked_add(HEADER_LEN + CRC_LEN)
+            .and_then(|end| end.checked_next_multiple_of(F::WRITE_SIZE.max(1)))
+            .filter(|&padded| padded <= self.slot_size as usize)
+        else {
             return Err(StoreError::Geometry);
-        }
+        };
         let record = scratch.get_mut(..padded).ok_or(StoreError::Encode)?;
-        record[..4].copy_from_slice(&MAGIC.to_le_bytes());
-        record[4..8].copy_from_slice(&seq.to_le_bytes());
-        record[8..12].copy_from_slice(&(len as u32).to_le_bytes());
+        let (header, body) = record
+            .split_first_chunk_mut::<HEADER_LEN>()
+            .ok_or(StoreError::Encode)?;
+        header[..4].copy_from_slice(&MAGIC.to_le_bytes());
+        header[4..8].copy_from_slice(&seq.to_le_bytes());
+        header[8..].copy_from_slice(&(len as u32).to_le_bytes());
         let mut crc = Crc32c::new();
-        crc.update(&record[..HEADER_LEN + len]);
-        record[HEADER_LEN + len..end].copy_from_slice(&crc.finish().to_le_bytes());
-        record[end..].fill(0xFF);
+        crc.update(header);
+        let (payload, tail) = body.split_at_mut_checked(len).ok_or(StoreError::Encode)?;
+        crc.update(payload);
+        let (stored_crc, padding) = tail
+            .split_first_chunk_mut::<CRC_LEN>()
+            .ok_or(StoreError::Encode)?;
+        *stored_crc = crc.finish().to_le_bytes();
+        padding.fill(0xFF);
 
-        // Erase, write all but the magic, then the magic.
+        // Erase, write all but the magic, then the magic. Offsets stay within the slot, below capacity < 2³²
+        // (`new`): the sums cannot wrap.
         let base = self.base(target);
         self.flash
-            .erase(base, base + self.slot_size)
+            .erase(base, base.wrapping_add(self.slot_size))
             .map_err(StoreError::Flash)?;
         let first = F::WRITE_SIZE.max(4);
         let (head, rest) = record.split_at(first.min(record.len()));
-        let mut at = base + head.len() as u32;
+        let mut at = base.wrapping_add(head.len() as u32);
         for chunk in rest.chunks(CHUNK) {
             self.flash.write(at, chunk).map_err(StoreError::Flash)?;
-            at += chunk.len() as u32;
+            at = at.wrapping_add(chunk.len() as u32);
         }
         self.flash.write(base, head).map_err(StoreError::Flash)?;
         Ok(seq)
     }
 }
 
+// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
+// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies.
 #[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing,
+    clippy::arithmetic_side_effects
+)]
 mod tests;

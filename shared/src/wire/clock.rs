@@ -1,8 +1,13 @@
 //! Time from the frames themselves: each frame advances time by N + 1 FPGA base periods (N = its decimation), and
 //! a sequence gap advances it by the lost frames too. Used by the pipeline and by the ground tools, so that both
 //! put the same time on the same frame.
+//!
+//! The tick count wraps modulo 2⁶⁴, as any free-running counter: after 60 million years at the nominal rate, or
+//! after 2³³ frames (164 days at 604.8 frames/s) of the worst a link can send (every frame reporting 2¹⁵ − 1 lost
+//! frames at N = 65535).
 
 use super::Decoded;
+use core::num::{NonZeroU64, NonZeroU128};
 
 /// Frame time keeping (see module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -36,10 +41,13 @@ impl FrameClock {
 
     /// Takes the next decoded frame; returns its time.
     pub fn advance(&mut self, d: &Decoded) -> Tick {
-        let step = u64::from(d.frame.decimation) + 1;
+        // ≤ 2¹⁶: cannot wrap.
+        let step = u64::from(d.frame.decimation).wrapping_add(1);
         let rate_changed = match self.decimation {
             Some(n) if n == d.frame.decimation => {
-                self.base_ticks += u64::from(d.missing_before) * step;
+                // The product is < 2³² · 2¹⁶ (cannot wrap); the sum wraps modulo 2⁶⁴ (module docs).
+                let lost = u64::from(d.missing_before).wrapping_mul(step);
+                self.base_ticks = self.base_ticks.wrapping_add(lost);
                 false
             }
             Some(_) => true,
@@ -50,12 +58,14 @@ impl FrameClock {
             base_ticks: self.base_ticks,
             rate_changed,
         };
-        self.base_ticks += step;
+        self.base_ticks = self.base_ticks.wrapping_add(step);
         tick
     }
 
     /// `ticks` base periods in µs, for a base rate in mHz (rounded down).
     pub fn ticks_to_us(ticks: u64, base_rate_mhz: u64) -> u64 {
-        (u128::from(ticks) * 1_000_000_000 / u128::from(base_rate_mhz.max(1))) as u64
+        // < 2⁶⁴ · 2³⁰: the product cannot wrap; a rate of 0 counts as 1 mHz.
+        let rate = NonZeroU128::from(NonZeroU64::new(base_rate_mhz).unwrap_or(NonZeroU64::MIN));
+        (u128::from(ticks).wrapping_mul(1_000_000_000) / rate) as u64
     }
 }

@@ -62,13 +62,14 @@ fn sync_candidate(bytes: &[u8]) -> usize {
         .get(from..)
         .and_then(|s| s.iter().position(|&b| b == SYNC[0]))
     {
-        let at = from + offset;
+        // Positions within `bytes` (< isize::MAX): the sums cannot wrap.
+        let at = from.wrapping_add(offset);
         let rest = bytes.get(at..).unwrap_or(&[]);
         let n = rest.len().min(SYNC.len());
         if rest.get(..n) == SYNC.get(..n) {
             return at;
         }
-        from = at + 1;
+        from = at.wrapping_add(1);
     }
     bytes.len()
 }
@@ -146,12 +147,13 @@ impl FrameDecoder {
                 return None;
             }
 
-            let take = (FRAME_LEN - self.len).min(input.len());
+            let free = self.buf.get_mut(self.len..)?;
+            let take = free.len().min(input.len());
             let (head, rest) = input.split_at(take);
-            self.buf
-                .get_mut(self.len..self.len + take)?
-                .copy_from_slice(head);
-            self.len += take;
+            let (dst, _) = free.split_at_mut(take);
+            dst.copy_from_slice(head);
+            // len + take ≤ FRAME_LEN: cannot wrap.
+            self.len = self.len.wrapping_add(take);
             *input = rest;
             if self.len < FRAME_LEN {
                 // Drop an early mismatch of the marker at once rather than after a whole frame's worth of bytes.
@@ -169,10 +171,12 @@ impl FrameDecoder {
                 }
             }
             // Resynchronise inside the held bytes: keep everything from the next candidate on.
-            let next = 1 + sync_candidate(self.buf.get(1..self.len).unwrap_or(&[]));
+            // 1 ≤ next ≤ len ≤ FRAME_LEN (the candidate lies inside `buf[1..len]`): neither the sum nor the
+            // difference wraps, and the copy's range is valid.
+            let next = sync_candidate(self.buf.get(1..self.len).unwrap_or(&[])).wrapping_add(1);
             self.skip(next);
             self.buf.copy_within(next..self.len, 0);
-            self.len -= next;
+            self.len = self.len.wrapping_sub(next);
         }
     }
 
@@ -212,5 +216,14 @@ impl FrameDecoder {
     }
 }
 
+// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
+// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies.
 #[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing,
+    clippy::arithmetic_side_effects
+)]
 mod tests;
