@@ -166,23 +166,37 @@ impl<F: NorFlash> CalStore<F> {
         Ok((SlotState::Valid(seq), len))
     }
 
+    /// Reads `slot` and decodes its table: the one rule of validity that `load` and `store` share. A record whose
+    /// CRC is right but whose table does not decode (another format version, another group count) is `Invalid`.
+    fn read_table<const G: usize>(
+        &mut self,
+        slot: usize,
+        scratch: &mut [u8],
+    ) -> Result<(SlotState, Option<CalibrationTable<G>>), F::Error> {
+        let (s, len) = self.read_slot(slot, scratch)?;
+        if !matches!(s, SlotState::Valid(_)) {
+            return Ok((s, None));
+        }
+        Ok(
+            match scratch.get(..len).map(CalibrationTable::<G>::decode) {
+                Some(Ok(table)) => (s, Some(table)),
+                _ => (SlotState::Invalid, None),
+            },
+        )
+    }
+
     /// Loads the newest valid calibration (by [`is_newer`]), or the factory default if no slot holds one.
     /// `scratch` must hold an encoded table (`calib::encoded_len_max(G)` bytes).
     pub fn load<const G: usize>(&mut self, scratch: &mut [u8]) -> Result<Loaded<G>, F::Error> {
         let mut slots = [SlotState::Empty; 2];
         let mut best: Option<(u32, CalibrationTable<G>)> = None;
         for (slot, state) in slots.iter_mut().enumerate() {
-            let (s, len) = self.read_slot(slot, scratch)?;
+            let (s, table) = self.read_table::<G>(slot, scratch)?;
             *state = s;
-            if let SlotState::Valid(seq) = s {
-                match scratch.get(..len).map(CalibrationTable::<G>::decode) {
-                    Some(Ok(table)) => {
-                        // Slot A is read first: on a tie (neither newer) it stays, as in `newest`.
-                        if best.is_none_or(|(b, _)| is_newer(seq, b)) {
-                            best = Some((seq, table));
-                        }
-                    }
-                    _ => *state = SlotState::Invalid,
+            if let (SlotState::Valid(seq), Some(table)) = (s, table) {
+                // Slot A is read first: on a tie (neither newer) it stays, as in `newest`.
+                if best.is_none_or(|(b, _)| is_newer(seq, b)) {
+                    best = Some((seq, table));
                 }
             }
         }
@@ -207,11 +221,13 @@ impl<F: NorFlash> CalStore<F> {
         table: &CalibrationTable<G>,
         scratch: &mut [u8],
     ) -> Result<u32, StoreError<F::Error>> {
-        // Which slot is current (the newer valid sequence number)?
+        // Which slot is current (the newer valid sequence number, valid as `load` sees it: a record whose table
+        // does not decode is not current, so the only loadable record is never the one erased)?
         let mut seqs = [None; 2];
         for (slot, s) in seqs.iter_mut().enumerate() {
-            if let (SlotState::Valid(seq), _) =
-                self.read_slot(slot, scratch).map_err(StoreError::Flash)?
+            if let (SlotState::Valid(seq), Some(_)) = self
+                .read_table::<G>(slot, scratch)
+                .map_err(StoreError::Flash)?
             {
                 *s = Some(seq);
             }

@@ -176,6 +176,33 @@ fn put_record(flash: &mut MockFlash, slot: usize, seq: u32, id: u32) {
     flash.mem[at..at + record.len()].copy_from_slice(&record);
 }
 
+/// Writes a record whose CRC is right but whose payload does not decode as a table (another format version).
+fn put_undecodable_record(flash: &mut MockFlash, slot: usize, seq: u32) {
+    let payload = [0xA5u8; 40];
+    let mut record = Vec::new();
+    record.extend_from_slice(&MAGIC.to_le_bytes());
+    record.extend_from_slice(&seq.to_le_bytes());
+    record.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+    record.extend_from_slice(&payload);
+    let crc = crate::crc::crc32c(&record);
+    record.extend_from_slice(&crc.to_le_bytes());
+    let at = slot * SLOT_BLOCKS * ERASE;
+    flash.mem[at..at + record.len()].copy_from_slice(&record);
+}
+
+#[test]
+fn an_undecodable_newer_record_is_not_current_for_store_either() {
+    // Slot A: the table that loads (seq 5). Slot B: a newer record with a valid CRC whose table does not decode.
+    // `load` skips B; `store` must also treat A as current and write into B, so that a power cut at any step still
+    // leaves A's table (before the fix it erased A, the only loadable record, and a cut left the factory default).
+    let mut flash = MockFlash::new();
+    put_record(&mut flash, 0, 5, 1);
+    put_undecodable_record(&mut flash, 1, 6);
+    let l = load(flash.clone());
+    assert_eq!((l.table, l.slots[1]), (table(1), SlotState::Invalid));
+    cut_power_at_every_step_of_updates(flash, Some(table(1)), 2..=3);
+}
+
 #[test]
 fn the_update_after_sequence_number_u32_max_is_the_one_loaded() {
     // Slot A holds seq 0xFFFFFFFF; the next update is seq 0 in slot B, and it is newer (serial-number arithmetic).
