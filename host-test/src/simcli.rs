@@ -328,7 +328,7 @@ pub fn check_samples(samples: f64, rate_hz: f64, frame_log: bool) -> Result<u64>
     if bytes > MAX_OUTPUT_BYTES {
         let max = (MAX_OUTPUT_BYTES / per_sample).floor();
         bail!(
-            "{samples:.0} samples at {rate_hz} Hz ({:.1} h) would write ≈ {:.3e} bytes; the limit is {:.0e} bytes \
+            "{samples:.0} samples at {rate_hz} Hz ({:.1} h) would write ≈ {:.3e} bytes; the limit is {:.1e} bytes \
              ({max:.0} samples, {:.1} h at this rate): lower --hours, --samples or --rate",
             samples / rate_hz / 3600.0,
             bytes,
