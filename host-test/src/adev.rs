@@ -349,6 +349,54 @@ pub fn kalibr_yaml(series: &[Series], rate_hz: f64, topic: &str) -> String {
     y
 }
 
+/// Whether the cluster means' fits can make a Kalibr file ([`kalibr_yaml`]): `Err` naming the problem when a sensor
+/// has no cluster mean, a white-noise density is not a positive finite number (a constant, too short or broken
+/// recording fits none, and Kalibr would take 0 as a perfect sensor), a random walk is not finite, or the rate is
+/// not a positive finite number. `Ok` holds warnings (a random walk the record did not resolve, written as 0).
+pub fn kalibr_check(series: &[Series], rate_hz: f64) -> Result<Vec<String>, String> {
+    if !(rate_hz.is_finite() && rate_hz > 0.0) {
+        return Err(format!(
+            "the sample rate ({rate_hz} Hz) is not a positive number"
+        ));
+    }
+    let mut warnings = Vec::new();
+    for kind in [SensorKind::Gyro, SensorKind::Accel] {
+        let means: Vec<&Series> = series
+            .iter()
+            .filter(|s| s.group.is_none() && s.kind == kind)
+            .collect();
+        if means.is_empty() {
+            return Err(format!(
+                "no {} columns: Kalibr needs the noise of both the gyros and the accelerometers",
+                kind.name()
+            ));
+        }
+        for s in &means {
+            let f = &s.fit;
+            if !(f.white.is_finite() && f.white > 0.0) {
+                return Err(format!(
+                    "{}: the noise fit has no white-noise density ({}); a constant, too short or non-finite \
+                     recording cannot give one",
+                    s.label, f.white
+                ));
+            }
+            if !f.random_walk.is_finite() {
+                return Err(format!(
+                    "{}: the noise fit's random walk is {}",
+                    s.label, f.random_walk
+                ));
+            }
+        }
+        if means.iter().all(|s| s.fit.random_walk == 0.0) {
+            warnings.push(format!(
+                "no {} random walk resolved (the record is too short or too quiet): *_random_walk is written as 0",
+                kind.name()
+            ));
+        }
+    }
+    Ok(warnings)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

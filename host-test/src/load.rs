@@ -41,12 +41,14 @@ pub fn detect(path: &Path, head: &[u8]) -> Result<InputKind> {
     )
 }
 
-/// A loaded recording, with notes for the user (ignored columns, link statistics).
+/// A loaded recording, with notes for the user (link statistics) and warnings (what was ignored or lost).
 pub struct Loaded {
     /// The physical recording.
     pub recording: Recording,
     /// Messages worth printing.
     pub notes: Vec<String>,
+    /// What the input lost or the reader ignored (columns, corrupt frames, gaps, missing temperatures).
+    pub warnings: Vec<String>,
 }
 
 /// A calibration of either array.
@@ -61,19 +63,20 @@ pub enum Calibration {
 /// IMUs of the MIMU4444 array.
 pub const MIMU_IMUS: usize = crate::mimu::IMUS;
 
-/// Reads a calibration file of either array (`.bin`, `.json`, `.toml`).
+/// Reads a calibration file of either array (`.bin`, `.json`, `.toml`), told apart by its number of groups.
 pub fn read_any_calibration(path: &Path) -> Result<Calibration> {
     // The calibration errors already name the file.
     let err = |e: crate::calibrate::CalibError| anyhow::anyhow!("{e}");
-    if let Ok(t) = crate::calibrate::read_calibration::<GROUPS>(path) {
-        return Ok(Calibration::Board(Box::new(
-            t.to_table::<GROUPS>().map_err(err)?,
-        )));
+    let f = crate::calibrate::read_calibration_any(path).map_err(err)?;
+    if f.groups.len() == GROUPS {
+        Ok(Calibration::Board(Box::new(
+            f.to_table::<GROUPS>().map_err(err)?,
+        )))
+    } else {
+        Ok(Calibration::Mimu(Box::new(
+            f.to_table::<MIMU_IMUS>().map_err(err)?,
+        )))
     }
-    let f = crate::calibrate::read_calibration::<MIMU_IMUS>(path).map_err(err)?;
-    Ok(Calibration::Mimu(Box::new(
-        f.to_table::<MIMU_IMUS>().map_err(err)?,
-    )))
 }
 
 /// The physical recording of a MIMU4444 stream: with `cal`, the table (µ-units, fixed point, in the cluster frame
@@ -136,6 +139,36 @@ pub fn mimu_recording(
     }
 }
 
+/// A warning about what the link decoder dropped or repeated in `path` (`None` when nothing): corrupt frames,
+/// skipped bytes and gaps in the sequence are not in the `output`; backward sequence jumps (an FPGA reset, or
+/// repeated frames) are named too, since repeated frames would count as new samples.
+pub fn link_warning(path: &Path, c: &shared::wire::LinkCounters, output: &str) -> Option<String> {
+    let mut parts = Vec::new();
+    let lost: Vec<String> = [
+        (c.crc_errors, "frames failed their CRC"),
+        (c.bytes_skipped, "bytes skipped"),
+        (c.frames_dropped, "frames missing by sequence"),
+    ]
+    .iter()
+    .filter(|(n, _)| *n > 0)
+    .map(|(n, what)| format!("{n} {what}"))
+    .collect();
+    if !lost.is_empty() {
+        parts.push(format!(
+            "{}: those frames are not in the {output}",
+            lost.join(", ")
+        ));
+    }
+    if c.seq_restarts > 0 {
+        parts.push(format!(
+            "the sequence counter jumped back {} times (an FPGA reset, or repeated frames, which count as new \
+             samples)",
+            c.seq_restarts
+        ));
+    }
+    (!parts.is_empty()).then(|| format!("{}: {}", path.display(), parts.join("; ")))
+}
+
 /// Loads a recording; raw formats go through `cal` (the factory default of our board, or the MIMU4444's nominal
 /// scales, when `None`).
 pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_mhz: u64) -> Result<Loaded> {
@@ -146,9 +179,23 @@ pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_mhz: u64) -> 
     };
     match detect(path, &bytes)? {
         InputKind::Csv => {
-            let (recording, notes) =
+            if cal.is_some() {
+                bail!(
+                    "{}: an interchange CSV holds calibrated values (°/s, g); a calibration applies only to raw \
+                     recordings (FPGA frame log, MIMU4444 stream)",
+                    path.display()
+                );
+            }
+            let (recording, warnings) =
                 Recording::read(path).with_context(|| path.display().to_string())?;
-            Ok(Loaded { recording, notes })
+            Ok(Loaded {
+                recording,
+                notes: Vec::new(),
+                warnings: warnings
+                    .into_iter()
+                    .map(|w| format!("{}: {w}", path.display()))
+                    .collect(),
+            })
         }
         InputKind::Mimu => {
             let m = crate::mimu::parse(&bytes)
@@ -177,9 +224,31 @@ pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_mhz: u64) -> 
                     " (calibrated, cluster frame)"
                 }
             )];
+            let lost: Vec<String> = [
+                (s.bytes_skipped as u64, "bytes skipped"),
+                (s.checksum_failures as u64, "frames failed their checksum"),
+                (s.packets_missing, "packets missing by number"),
+            ]
+            .iter()
+            .filter(|(n, _)| *n > 0)
+            .map(|(n, what)| format!("{n} {what}"))
+            .collect();
+            let warnings = if lost.is_empty() {
+                Vec::new()
+            } else {
+                vec![format!(
+                    "{}: {}: those samples are not in the recording{}",
+                    path.display(),
+                    lost.join(", "),
+                    s.events
+                        .first()
+                        .map_or(String::new(), |e| format!(" (the first at {e})"))
+                )]
+            };
             Ok(Loaded {
                 recording: mimu_recording(&m, table),
                 notes,
+                warnings,
             })
         }
         InputKind::FrameLog => {
@@ -195,7 +264,12 @@ pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_mhz: u64) -> 
             };
             let log = FrameLog::decode(&bytes);
             if log.frames.is_empty() {
-                bail!("{}: no valid frame found", path.display());
+                bail!(
+                    "{}: no valid frame found in {} bytes ({} CRC errors)",
+                    path.display(),
+                    bytes.len(),
+                    log.counters.crc_errors
+                );
             }
             let factory = CalibrationTable::factory();
             let recording = log.to_recording(board.unwrap_or(&factory), base_rate_mhz);
@@ -212,7 +286,12 @@ pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_mhz: u64) -> 
                     ""
                 }
             )];
-            Ok(Loaded { recording, notes })
+            let warnings = link_warning(path, &c, "recording").into_iter().collect();
+            Ok(Loaded {
+                recording,
+                notes,
+                warnings,
+            })
         }
     }
 }

@@ -36,7 +36,17 @@ pub fn parse_groups(s: &str) -> Result<Vec<usize>> {
     for part in s.split(',') {
         match part.split_once('-') {
             Some((a, b)) => {
-                let (a, b): (usize, usize) = (a.trim().parse()?, b.trim().parse()?);
+                let (a, b): (usize, usize) = (
+                    a.trim()
+                        .parse()
+                        .with_context(|| format!("bad group '{a}' in '{part}'"))?,
+                    b.trim()
+                        .parse()
+                        .with_context(|| format!("bad group '{b}' in '{part}'"))?,
+                );
+                if b < a {
+                    bail!("bad group range '{part}': the end is below the start");
+                }
                 out.extend(a..=b);
             }
             None => out.push(
@@ -182,6 +192,9 @@ impl EffectArgs {
                 drift_per_h: 0.0,
             });
         }
+        if !(self.unequal.is_finite() && self.unequal >= 0.0) {
+            bail!("--unequal must be a log-sd ≥ 0, found {}", self.unequal);
+        }
         if self.unequal > 0.0 {
             cfg.spread = PartSpread::unequal_noise(self.unequal);
         }
@@ -216,25 +229,114 @@ pub fn write(cfg: SimConfig, path: &Path, mut progress: impl FnMut(u64)) -> Resu
     );
     let mut chunk = Chunk::default();
     let mut text = String::new();
-    if csv {
-        writeln!(out, "{}", csv_header(with_temp))?;
-    }
-    let mut done = 0u64;
-    while sim.next_chunk(&mut chunk) > 0 {
-        for i in 0..chunk.len {
-            if csv {
-                text.clear();
-                chunk.write_csv_row(i, &mut text);
-                out.write_all(text.as_bytes())?;
-            } else if let Some(f) = chunk.frame(i) {
-                out.write_all(&f.to_bytes())?;
-            }
+    let mut run = || -> std::io::Result<()> {
+        if csv {
+            writeln!(out, "{}", csv_header(with_temp))?;
         }
-        done += chunk.len as u64;
-        progress(done);
-    }
-    out.flush()?;
+        let mut done = 0u64;
+        while sim.next_chunk(&mut chunk) > 0 {
+            for i in 0..chunk.len {
+                if csv {
+                    text.clear();
+                    chunk.write_csv_row(i, &mut text);
+                    out.write_all(text.as_bytes())?;
+                } else if let Some(f) = chunk.frame(i) {
+                    out.write_all(&f.to_bytes())?;
+                }
+            }
+            done += chunk.len as u64;
+            progress(done);
+        }
+        out.flush()
+    };
+    run().with_context(|| format!("writing {}", path.display()))?;
     Ok(sim)
+}
+
+/// Largest output `ground simulate` writes, bytes (estimated before it starts).
+pub const MAX_OUTPUT_BYTES: f64 = 32e9;
+
+/// Bytes per sample of a CSV output (96 values; the seed preset writes ≈ 920).
+const CSV_ROW_BYTES: f64 = 1000.0;
+
+/// Checks the rates of a simulation written to `out` (`.bin`: frame log, `.csv`): both positive and finite, the
+/// output rate at most the FPGA base rate; for a frame log, a whole decimation of the base rate that a frame can
+/// carry (16 bits) within 1 % of `rate_hz`. Returns whether the output is a frame log.
+pub fn check_rates(out: &Path, rate_hz: f64, base_rate_hz: f64) -> Result<bool> {
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let frame_log = match ext.as_str() {
+        "csv" => false,
+        "bin" => true,
+        _ => bail!(
+            "{}: the output must end in .bin (frame log) or .csv (interchange CSV)",
+            out.display()
+        ),
+    };
+    if !(rate_hz.is_finite() && rate_hz > 0.0) {
+        bail!("--rate must be a positive number of Hz, found {rate_hz}");
+    }
+    if !(base_rate_hz.is_finite() && base_rate_hz > 0.0) {
+        bail!("--base-rate-hz must be a positive number of Hz, found {base_rate_hz}");
+    }
+    if rate_hz > base_rate_hz {
+        bail!(
+            "--rate {rate_hz} Hz is above the FPGA base rate {base_rate_hz} Hz (--base-rate-hz): the output rate is \
+             the base rate divided by a whole number"
+        );
+    }
+    if frame_log {
+        let div = (base_rate_hz / rate_hz).round();
+        let max_div = f64::from(u16::MAX) + 1.0;
+        if div > max_div {
+            bail!(
+                "--rate {rate_hz} Hz is below the lowest rate of a frame log at {base_rate_hz} Hz: {base_rate_hz} / \
+                 {max_div} = {} Hz (the decimation is a 16-bit field); write a .csv instead",
+                base_rate_hz / max_div
+            );
+        }
+        let actual = base_rate_hz / div;
+        if (actual / rate_hz - 1.0).abs() > 0.01 {
+            bail!(
+                "--rate {rate_hz} Hz is not the base rate {base_rate_hz} Hz divided by a whole number (the nearest is \
+                 {base_rate_hz} / {div} = {actual} Hz, {:.1} % off): the frames' times would disagree with the \
+                 samples",
+                100.0 * (actual / rate_hz - 1.0)
+            );
+        }
+    }
+    Ok(frame_log)
+}
+
+/// Checks the number of samples of a simulation (as computed, before rounding to an integer): at least one, and
+/// an output of at most [`MAX_OUTPUT_BYTES`].
+pub fn check_samples(samples: f64, rate_hz: f64, frame_log: bool) -> Result<u64> {
+    if samples.is_nan() || samples < 1.0 {
+        bail!(
+            "{samples} samples: --samples / --hours must give at least one sample at {rate_hz} Hz"
+        );
+    }
+    let per_sample = if frame_log {
+        shared::wire::frame::FRAME_LEN as f64
+    } else {
+        CSV_ROW_BYTES
+    };
+    let bytes = samples * per_sample;
+    if bytes > MAX_OUTPUT_BYTES {
+        let max = (MAX_OUTPUT_BYTES / per_sample).floor();
+        bail!(
+            "{samples:.0} samples at {rate_hz} Hz ({:.1} h) would write ≈ {:.3e} bytes; the limit is {:.1e} bytes \
+             ({max:.0} samples, {:.1} h at this rate): lower --hours, --samples or --rate",
+            samples / rate_hz / 3600.0,
+            bytes,
+            MAX_OUTPUT_BYTES,
+            max / rate_hz / 3600.0
+        );
+    }
+    Ok(samples as u64)
 }
 
 /// Frame header defaults for a rate: the decimation that gives `rate_hz` from the FPGA base rate.

@@ -130,10 +130,10 @@ struct SimulateArgs {
     #[arg(long, default_value_t = 9676.8)]
     base_rate_hz: f64,
     /// True angular rate of the board, °/s (x,y,z; e.g. a rate table).
-    #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+    #[arg(long, value_delimiter = ',', num_args = 1..=3, allow_hyphen_values = true)]
     rate_dps: Option<Vec<f64>>,
     /// True specific force, g (x,y,z; default the preset's).
-    #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+    #[arg(long, value_delimiter = ',', num_args = 1..=3, allow_hyphen_values = true)]
     accel_g: Option<Vec<f64>>,
     #[command(flatten)]
     effects: host_test::simcli::EffectArgs,
@@ -300,11 +300,40 @@ fn main() -> ExitCode {
     }
 }
 
+/// Highest FPGA base rate accepted, Hz.
+const MAX_BASE_RATE_HZ: f64 = 1e9;
+
 fn mhz(hz: f64) -> Result<u64> {
-    if !(hz.is_finite() && hz > 0.0) {
-        bail!("the base rate must be a positive number of Hz");
+    if !(hz.is_finite() && hz > 0.0 && hz <= MAX_BASE_RATE_HZ) {
+        bail!(
+            "the base rate must be a positive number of Hz up to {MAX_BASE_RATE_HZ:e}, found {hz}"
+        );
     }
     Ok((hz * 1000.0).round() as u64)
+}
+
+/// Writes `path` through a buffer with `write`, then flushes it: an error of either (a full disk) names the file.
+fn write_file<T>(
+    path: &Path,
+    write: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<T>,
+) -> Result<T> {
+    let mut w = std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+    );
+    let v = write(&mut w)
+        .and_then(|v| std::io::Write::flush(&mut w).map(|()| v))
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(v)
+}
+
+/// Prints the loader's notes and warnings (to stderr).
+fn print_loaded(loaded: &load::Loaded) {
+    for n in &loaded.notes {
+        eprintln!("note: {n}");
+    }
+    for w in &loaded.warnings {
+        eprintln!("warning: {w}");
+    }
 }
 
 fn spinner(msg: &str) -> ProgressBar {
@@ -329,9 +358,10 @@ fn calib(path: &Option<PathBuf>) -> Result<Option<shared::calib::CalibrationTabl
     match any_calib(path)? {
         None => Ok(None),
         Some(load::Calibration::Board(t)) => Ok(Some(*t)),
-        Some(load::Calibration::Mimu(_)) => {
-            bail!("this is an 8-IMU (MIMU4444) calibration; frame logs need a 16-group one")
-        }
+        Some(load::Calibration::Mimu(_)) => bail!(
+            "{}: this is an 8-IMU (MIMU4444) calibration; frame logs need a 16-group one",
+            path.as_deref().unwrap_or(Path::new("")).display()
+        ),
     }
 }
 
@@ -350,9 +380,7 @@ fn import(a: ImportArgs) -> Result<()> {
         .write(&a.out)
         .with_context(|| format!("writing {}", a.out.display()))?;
     pb.finish_and_clear();
-    for n in &loaded.notes {
-        eprintln!("note: {n}");
-    }
+    print_loaded(&loaded);
     let r = &loaded.recording;
     println!(
         "{}: {} samples × {} columns, {:.1} s",
@@ -396,9 +424,21 @@ fn replay_cmd(a: ReplayArgs) -> Result<()> {
     let out = replay(&bytes, &opts, |n| pb.set_position(n as u64));
     let secs = t0.elapsed().as_secs_f64();
     pb.finish_and_clear();
+    let c = out.counters;
+    if c.frames == 0 {
+        bail!(
+            "{}: no valid frame in {} bytes ({} CRC errors; an FPGA frame log starts each frame with the sync \
+             marker 1A CF FC 1D); nothing written",
+            a.frames.display(),
+            bytes.len(),
+            c.crc_errors
+        );
+    }
     std::fs::write(&a.out, &out.telemetry)
         .with_context(|| format!("writing {}", a.out.display()))?;
-    let c = out.counters;
+    if let Some(w) = load::link_warning(&a.frames, &c, "telemetry") {
+        eprintln!("warning: {w}");
+    }
     println!(
         "{} frames ({} CRC errors, {} bytes skipped, {} missing) → {} messages, {} bytes of telemetry in {}",
         c.frames,
@@ -430,28 +470,64 @@ fn replay_cmd(a: ReplayArgs) -> Result<()> {
 }
 
 fn decode(a: DecodeArgs) -> Result<()> {
-    let bytes =
-        std::fs::read(&a.input).with_context(|| format!("reading {}", a.input.display()))?;
-    let log = TelemetryLog::decode(&bytes, &BusConfig::DEFAULT);
-    let mut out = std::io::BufWriter::new(
-        std::fs::File::create(&a.out).with_context(|| format!("creating {}", a.out.display()))?,
-    );
-    match a.out.extension().and_then(|e| e.to_str()) {
-        Some("csv") => log.write_fused_csv(&mut out)?,
-        Some("jsonl") | Some("json") => log.write_jsonl(&mut out)?,
+    let csv = match a.out.extension().and_then(|e| e.to_str()) {
+        Some("csv") => true,
+        Some("jsonl") | Some("json") => false,
         _ => bail!(
             "{}: the output must end in .csv (fused samples) or .jsonl (all messages)",
             a.out.display()
         ),
+    };
+    let bytes =
+        std::fs::read(&a.input).with_context(|| format!("reading {}", a.input.display()))?;
+    let log = TelemetryLog::decode(&bytes, &BusConfig::DEFAULT);
+    let s = log.stats;
+    if log.messages.is_empty() {
+        bail!(
+            "{}: no telemetry message in {} bytes ({} KISS frames: {} bad KISS, {} bad CSP, {} bad messages, {} for \
+             other ports); nothing written",
+            a.input.display(),
+            bytes.len(),
+            s.frames,
+            s.kiss_errors,
+            s.csp_errors,
+            s.bad_messages,
+            s.other_port
+        );
+    }
+    if csv {
+        write_file(&a.out, |w| log.write_fused_csv(w))?;
+        if log.fused().next().is_none() {
+            eprintln!(
+                "warning: no fused samples among the {} messages: {} holds only its header (.jsonl keeps every \
+                 message)",
+                log.messages.len(),
+                a.out.display()
+            );
+        }
+    } else {
+        write_file(&a.out, |w| log.write_jsonl(w))?;
     }
     if let Some(p) = &a.allan {
-        let mut w = std::io::BufWriter::new(
-            std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?,
-        );
-        let n = log.write_allan_csv(&mut w)?;
+        let n = write_file(p, |w| log.write_allan_csv(w))?;
         println!("{}: {n} Allan levels", p.display());
+        if n == 0 {
+            eprintln!(
+                "warning: no Allan reports in the stream: {} holds only its header",
+                p.display()
+            );
+        }
     }
-    let s = log.stats;
+    if s.kiss_errors > 0 || s.csp_errors > 0 || s.bad_messages > 0 {
+        eprintln!(
+            "warning: {}: {} KISS frames, {} CSP packets and {} messages could not be decoded: they are not in the \
+             output",
+            a.input.display(),
+            s.kiss_errors,
+            s.csp_errors,
+            s.bad_messages
+        );
+    }
     println!(
         "{} messages ({} fused) from {} KISS frames; bad: {} KISS, {} CSP, {} message; {} for other ports",
         log.messages.len(),
@@ -486,10 +562,32 @@ fn parse_window(s: &str) -> Result<(f64, f64)> {
         a.trim().parse().context("--window start")?,
         b.trim().parse().context("--window end")?,
     );
+    if a.is_nan() || b.is_nan() {
+        bail!("--window: START and END must be numbers of seconds, found '{s}'");
+    }
     if b <= a {
         bail!("--window: END must be after START");
     }
     Ok((a, b))
+}
+
+/// Applies `--window` to a loaded recording; fewer than two samples left is an error.
+fn apply_window(rec: &mut host_test::formats::Recording, window: &str) -> Result<()> {
+    let (s, e) = parse_window(window)?;
+    let span = (
+        rec.t_s.first().copied().unwrap_or(f64::NAN),
+        rec.t_s.last().copied().unwrap_or(f64::NAN),
+    );
+    *rec = rec.window(s, e);
+    if rec.len() < 2 {
+        bail!(
+            "--window {window} keeps {} samples (the recording spans {} … {} s)",
+            rec.len(),
+            span.0,
+            span.1
+        );
+    }
+    Ok(())
 }
 
 fn allan(a: AllanArgs) -> Result<()> {
@@ -498,14 +596,18 @@ fn allan(a: AllanArgs) -> Result<()> {
     let pb = spinner("reading");
     let mut loaded = load::load_with(&a.recording, cal.as_ref(), 9_676_800)?;
     pb.finish_and_clear();
-    for n in &loaded.notes {
-        eprintln!("note: {n}");
-    }
+    print_loaded(&loaded);
     if let Some(w) = &a.window {
-        let (s, e) = parse_window(w)?;
-        loaded.recording = loaded.recording.window(s, e);
+        apply_window(&mut loaded.recording, w)?;
     }
     let rec = &loaded.recording;
+    if rec.len() < 2 {
+        bail!(
+            "{}: {} samples: too few for an Allan deviation",
+            a.recording.display(),
+            rec.len()
+        );
+    }
     let kind = match a.kind {
         KindArg::Adev => DevKind::Adev,
         KindArg::Oadev => DevKind::Oadev,
@@ -527,10 +629,33 @@ fn allan(a: AllanArgs) -> Result<()> {
     let series = adev::analyze(rec, &req, &|| pb.inc(1)).map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
     let t_analysis = t0.elapsed().as_secs_f64() - t_read;
-    let mut out = std::io::BufWriter::new(
-        std::fs::File::create(&a.out).with_context(|| format!("creating {}", a.out.display()))?,
-    );
-    adev::write_long_csv(&series, &mut out)?;
+    if series.iter().all(|s| s.points.is_empty()) {
+        bail!(
+            "{}: {} samples are too few for any averaging time",
+            a.recording.display(),
+            rec.len()
+        );
+    }
+    if let Some(s) = series
+        .iter()
+        .find(|s| s.points.iter().any(|p| !p.dev.is_finite()))
+    {
+        bail!(
+            "{}: the deviation of {} is not finite (values too large to square?)",
+            a.recording.display(),
+            s.label
+        );
+    }
+    let rate = 1.0 / rec.sample_interval_s().unwrap_or(f64::NAN);
+    // Checked before anything is written: no Kalibr file with invented noise densities.
+    if a.kalibr.is_some() {
+        let warnings = adev::kalibr_check(&series, rate)
+            .map_err(|e| anyhow::anyhow!("--kalibr: {}: {e}", a.recording.display()))?;
+        for w in warnings {
+            eprintln!("warning: --kalibr: {w}");
+        }
+    }
+    write_file(&a.out, |w| adev::write_long_csv(&series, w))?;
     println!(
         "{}: {} series, {} samples at {:.6} s (reading {:.2} s, analysis {:.2} s)",
         a.out.display(),
@@ -546,14 +671,10 @@ fn allan(a: AllanArgs) -> Result<()> {
         println!("plot: {}", p.display());
     }
     if let Some(f) = &a.fit {
-        let mut w = std::io::BufWriter::new(
-            std::fs::File::create(f).with_context(|| format!("creating {}", f.display()))?,
-        );
-        adev::write_fit_csv(&series, &mut w)?;
+        write_file(f, |w| adev::write_fit_csv(&series, w))?;
         println!("noise fits: {}", f.display());
     }
     if let Some(k) = &a.kalibr {
-        let rate = 1.0 / rec.sample_interval_s().unwrap_or(f64::NAN);
         std::fs::write(k, adev::kalibr_yaml(&series, rate, "/imu0"))
             .with_context(|| format!("writing {}", k.display()))?;
         println!("kalibr: {}", k.display());
@@ -664,12 +785,10 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
     let cal = any_calib(&a.calib)?;
     let pb = spinner("reading");
     let mut loaded = load::load_with(&a.recording, cal.as_ref(), 9_676_800)?;
-    for n in &loaded.notes {
-        pb.println(format!("note: {n}"));
-    }
+    // Through `suspend`: the spinner's own `println` prints nothing when stderr is not a terminal.
+    pb.suspend(|| print_loaded(&loaded));
     if let Some(w) = &a.window {
-        let (s, e) = parse_window(w)?;
-        loaded.recording = loaded.recording.window(s, e);
+        apply_window(&mut loaded.recording, w)?;
     }
     if a.longest_static {
         let m = host_test::mimu::read(&a.recording)
@@ -729,23 +848,42 @@ fn simulate(a: SimulateArgs) -> Result<()> {
             seedfit::seed_config_with(&seedfit::fit().map_err(sim_err)?, a.seed).map_err(sim_err)?
         }
     };
-    if !(a.rate.is_finite() && a.rate > 0.0) {
-        bail!("--rate must be a positive number of Hz");
-    }
+    let frame_log = simcli::check_rates(&a.out, a.rate, a.base_rate_hz)?;
+    mhz(a.base_rate_hz).context("--base-rate-hz")?;
     cfg.rate_hz = a.rate;
-    cfg.samples = match (a.samples, a.hours) {
-        (Some(n), _) => n,
-        (None, Some(h)) if h > 0.0 => (h * 3600.0 * a.rate).round() as u64,
-        (None, Some(_)) => bail!("--hours must be positive"),
-        (None, None) if a.rate == 18.9 => cfg.samples,
-        (None, None) => (8.0 * 3600.0 * a.rate).round() as u64,
+    let samples = match (a.samples, a.hours) {
+        (Some(n), _) => n as f64,
+        (None, Some(h)) if h.is_finite() && h > 0.0 => (h * 3600.0 * a.rate).round(),
+        (None, Some(h)) => bail!("--hours must be a positive number, found {h}"),
+        (None, None) if a.rate == 18.9 => cfg.samples as f64,
+        (None, None) => (8.0 * 3600.0 * a.rate).round(),
     };
+    cfg.samples = simcli::check_samples(samples, a.rate, frame_log)?;
     cfg.frames = simcli::frame_opts(a.rate, a.base_rate_hz);
+    if frame_log {
+        let actual = a.base_rate_hz / (f64::from(cfg.frames.decimation) + 1.0);
+        if (actual / a.rate - 1.0).abs() > 1e-9 {
+            eprintln!(
+                "note: the frames' time base is {} Hz / {} = {actual} Hz (decimation {}), not exactly --rate {} Hz",
+                a.base_rate_hz,
+                u32::from(cfg.frames.decimation) + 1,
+                cfg.frames.decimation,
+                a.rate
+            );
+        }
+    }
+    let xyz = |v: &[f64], what: &str| -> Result<[f64; 3]> {
+        match v {
+            [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([*x, *y, *z]),
+            [_, _, _] => bail!("{what}: the values must be finite numbers, found {v:?}"),
+            _ => bail!("{what}: expected 3 values x,y,z, found {}", v.len()),
+        }
+    };
     if let Some(r) = &a.rate_dps {
-        cfg.rate_dps = [r[0], r[1], r[2]];
+        cfg.rate_dps = xyz(r, "--rate-dps")?;
     }
     if let Some(g) = &a.accel_g {
-        cfg.accel_g = [g[0], g[1], g[2]];
+        cfg.accel_g = xyz(g, "--accel-g")?;
     }
     a.effects.apply(&mut cfg)?;
     let samples = cfg.samples;
@@ -791,7 +929,11 @@ fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
     };
     let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
     if let Some(rec) = &a.static_rec {
-        let m = host_test::mimu::read(rec).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let m = host_test::mimu::read(rec).map_err(|e| match e {
+            // The I/O error names the file already.
+            host_test::mimu::MimuError::Io { .. } => anyhow::anyhow!("{e}"),
+            _ => anyhow::anyhow!("{}: {e}", rec.display()),
+        })?;
         let detect = DetectOptions {
             min_duration_s: a.min_static_s,
             ..DetectOptions::default()
@@ -820,6 +962,18 @@ fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
                 f[1],
                 f[2],
                 p.accel_change_mg
+            );
+        }
+        if poses.is_empty() {
+            bail!(
+                "{}: no static interval found (window {} s, accel std < {} g, gyro std < {} °/s, at least {} s \
+                 after {} s trimmed at each end; a shorter --min-static-s finds shorter ones)",
+                rec.display(),
+                detect.window_s,
+                detect.accel_std_max_g,
+                detect.gyro_std_max_dps,
+                detect.min_duration_s,
+                detect.trim_s
             );
         }
         let file = if a.biases_only {

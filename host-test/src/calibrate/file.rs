@@ -14,7 +14,8 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 use shared::calib::{
-    ACCEL_RAW, BIAS_LIMIT_Q12, CalibrationTable, FRAC_BITS, GYRO_RAW, GroupCal, encoded_len_max,
+    ACCEL_RAW, BIAS_LIMIT_Q12, CalError, CalibrationTable, FRAC_BITS, GYRO_RAW, GroupCal,
+    encoded_len_max,
 };
 
 use super::fit::{BiasModel, StaticCalibration};
@@ -247,36 +248,96 @@ fn kind(path: &Path) -> Result<Kind, CalibError> {
     }
 }
 
-/// Reads a calibration of `G` groups from `.json`, `.toml` or `.bin` (by extension).
-pub fn read_calibration<const G: usize>(
-    path: impl AsRef<Path>,
+/// Reads `path` by its extension; `.bin` through `bin`. No checks beyond the syntax.
+fn parse_file(
+    path: &Path,
+    bin: impl FnOnce(&[u8]) -> Result<CalibrationFile, CalibError>,
 ) -> Result<CalibrationFile, CalibError> {
-    let path = path.as_ref();
     let kind = kind(path)?;
     let bytes = std::fs::read(path).map_err(|source| CalibError::Io {
         path: path.to_path_buf(),
         source,
     })?;
     let text = || std::str::from_utf8(&bytes).map_err(|e| format_err(path, e));
-    let file = match kind {
+    Ok(match kind {
         Kind::Json => serde_json::from_str(text()?).map_err(|e| format_err(path, e))?,
         Kind::Toml => toml::from_str(text()?).map_err(|e| format_err(path, e))?,
-        Kind::Bin => CalibrationFile::from_bin::<G>(&bytes).map_err(|e| format_err(path, e))?,
-    };
-    if file.groups.len() != G {
-        return Err(format_err(
-            path,
-            format!("{} groups, expected {G}", file.groups.len()),
-        ));
-    }
+        Kind::Bin => bin(&bytes).map_err(|e| format_err(path, e))?,
+    })
+}
+
+/// The checks of a read file beyond its group count: format, rails, every value representable in the table.
+fn check_file(path: &Path, file: &CalibrationFile) -> Result<(), CalibError> {
     if file.format != CALIBRATION_FORMAT {
         return Err(format_err(
             path,
             format!("format {:?}, expected {CALIBRATION_FORMAT:?}", file.format),
         ));
     }
-    // Everything must also be representable in the table.
-    file.to_table::<G>().map_err(|e| format_err(path, e))?;
+    if file.raw_min >= file.raw_max {
+        return Err(format_err(
+            path,
+            format!(
+                "raw_min = {} is not below raw_max = {}: every reading would count as saturated",
+                file.raw_min, file.raw_max
+            ),
+        ));
+    }
+    for (i, g) in file.groups.iter().enumerate() {
+        g.to_q12()
+            .map_err(|e| format_err(path, format!("group {i}: {e}")))?;
+    }
+    Ok(())
+}
+
+/// Reads a calibration of `G` groups from `.json`, `.toml` or `.bin` (by extension).
+pub fn read_calibration<const G: usize>(
+    path: impl AsRef<Path>,
+) -> Result<CalibrationFile, CalibError> {
+    let path = path.as_ref();
+    let file = parse_file(path, |b| match CalibrationFile::from_bin::<G>(b) {
+        Err(CalibError::Table(CalError::GroupCount(n))) => Err(CalibError::Count {
+            what: "groups of the table",
+            expected: G,
+            found: usize::from(n),
+        }),
+        r => r,
+    })?;
+    if file.groups.len() != G {
+        return Err(format_err(
+            path,
+            format!("{} groups, expected {G}", file.groups.len()),
+        ));
+    }
+    check_file(path, &file)?;
+    Ok(file)
+}
+
+/// Reads a calibration of either array (16 groups: our board; 8: the MIMU4444) from `.json`, `.toml` or `.bin`,
+/// checked as [`read_calibration`] checks it; any other number of groups is an error saying so.
+pub fn read_calibration_any(path: impl AsRef<Path>) -> Result<CalibrationFile, CalibError> {
+    const BOARD: usize = shared::wire::frame::GROUPS;
+    const MIMU: usize = crate::mimu::IMUS;
+    let path = path.as_ref();
+    let file = parse_file(path, |b| match CalibrationFile::from_bin::<BOARD>(b) {
+        Err(CalibError::Table(CalError::GroupCount(n))) if usize::from(n) == MIMU => {
+            CalibrationFile::from_bin::<MIMU>(b)
+        }
+        Err(CalibError::Table(CalError::GroupCount(n))) => Err(CalibError::Count {
+            what: "groups of the table",
+            expected: BOARD,
+            found: usize::from(n),
+        }),
+        r => r,
+    })?;
+    let n = file.groups.len();
+    if n != BOARD && n != MIMU {
+        return Err(format_err(
+            path,
+            format!("{n} groups, expected {BOARD} (our board) or {MIMU} (the MIMU4444 array)"),
+        ));
+    }
+    check_file(path, &file)?;
     Ok(file)
 }
 

@@ -34,7 +34,7 @@ pub use biases::{BiasMethod, BiasOptions, BiasUpdate, reestimate_biases};
 pub use detect::{DetectOptions, StaticInterval, detect_static};
 pub use file::{
     CALIBRATION_FORMAT, CalibrationFile, CalibrationMetadata, GroupCalF64, ImuMetadata,
-    read_calibration, write_calibration,
+    read_calibration, read_calibration_any, write_calibration,
 };
 pub use fit::{
     BiasModel, ClusterAlignment, ClusterFit, ImuCal, MagnitudeFit, StaticCalOptions,
@@ -115,10 +115,29 @@ impl fmt::Display for CalibError {
                 found,
             } => write!(f, "{what}: expected {expected}, found {found}"),
             Self::OutOfRange(s) => write!(f, "out of range: {s}"),
-            Self::Table(e) => write!(f, "calibration table: {e:?}"),
+            Self::Table(e) => write!(f, "calibration table: {e:?} ({})", table_error(e)),
             Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
             Self::Format { path, message } => write!(f, "{}: {message}", path.display()),
         }
+    }
+}
+
+/// What a table error means.
+fn table_error(e: &shared::calib::CalError) -> String {
+    use shared::calib::CalError as E;
+    match e {
+        E::BufferTooSmall => "the output buffer is too small".into(),
+        E::Truncated => "too short for a calibration table".into(),
+        E::Crc => {
+            "the CRC-32C does not match: the file is damaged or not a calibration table".into()
+        }
+        E::Version(v) => format!(
+            "written by format version {v}, expected {}",
+            shared::calib::CAL_FORMAT_VERSION
+        ),
+        E::GroupCount(n) => format!("a table of {n} groups"),
+        E::Malformed => "the CRC matches but the contents do not parse".into(),
+        E::BiasOutOfRange => "a bias beyond ±65536 counts".into(),
     }
 }
 

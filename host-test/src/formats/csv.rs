@@ -1,6 +1,9 @@
 //! The interchange CSV: `t,temp_c,g00x,g00y,g00z,a00x,a00y,a00z,g01x,…`, one row per sample. `t` in seconds,
 //! `temp_c` (optional) in °C, then per sensor group `gSSx/y/z` in °/s and `aSSx/y/z` in g, any number of groups, any
-//! subset of axes. Columns may come in any order; unknown columns are ignored with a warning.
+//! subset of axes. Columns may come in any order; unknown columns are ignored with a warning. A UTF-8 byte-order mark
+//! is skipped. Every cell must be a finite number (NaN only in `temp_c`: no temperature, with a warning), `t` must
+//! increase from row to row (steps longer than 1.5 sample intervals give a warning), and there must be a data row;
+//! anything else is an error with its line and column.
 
 use rayon::prelude::*;
 use std::fmt::Write as _;
@@ -305,7 +308,8 @@ fn byte_mask(block: &[u8; 64], a: u8, b: u8) -> u64 {
 
 /// Parses the rows of one piece, writing row r of file column c into `out[c][r]` (`None`: an ignored column);
 /// returns the rows written. `first_line` is the file line number of the line before the piece's first one (a
-/// piece starts right after a line end).
+/// piece starts right after a line end). Every empty line pushes onto `blanks` the row that follows it (rows of
+/// the piece), so that a row's line can be found afterwards.
 ///
 /// Cells are found from bitmasks of the separators, 64 bytes at a time, so where a cell starts never waits for the
 /// cell before it to be parsed: the processor works on several numbers at once. Compiled also for AVX2 + BMI2 and
@@ -320,6 +324,7 @@ fn parse_chunk(
     first_line: usize,
     names: &[&str],
     out: &mut [Option<&mut [f64]>],
+    blanks: &mut Vec<usize>,
 ) -> Result<usize, CsvError> {
     let ncols = out.len();
     let (mut line_no, mut row, mut col, mut start) = (first_line, 0usize, 0usize, 0usize);
@@ -357,6 +362,7 @@ fn parse_chunk(
                 end -= usize::from(end > start && b.get(end - 1) == Some(&b'\r'));
                 if col == 0 && end == start {
                     // An empty line.
+                    blanks.push(row);
                     line_no += 1;
                     start = sep + 1;
                     continue;
@@ -394,17 +400,26 @@ fn parse_chunk(
     }
 }
 
-/// A cell the fast path refused: trimmed, through [`parse_f64`], or a positioned error.
+/// A cell the fast path refused: trimmed, through [`parse_f64`], or a positioned error. Only this path can give a
+/// value that is not finite (`nan`, `inf`, `1e400`): an error, except NaN in `temp_c` (a sample without a
+/// temperature, as [`Recording::write`] writes it).
 #[cold]
 fn general_cell(cell: &[u8], line: usize, col: usize, names: &[&str]) -> Result<f64, CsvError> {
     let text = String::from_utf8_lossy(cell);
     let text = text.trim();
-    parse_f64(text).ok_or_else(|| CsvError::Cell {
+    let name = names.get(col).unwrap_or(&"?");
+    let err = |what: String| CsvError::Cell {
         line,
         column: col + 1,
-        name: names.get(col).unwrap_or(&"?").to_string(),
-        what: format!("expected a number, found '{text}'"),
-    })
+        name: name.to_string(),
+        what,
+    };
+    let v = parse_f64(text).ok_or_else(|| err(format!("expected a number, found '{text}'")))?;
+    if v.is_finite() || (v.is_nan() && *name == "temp_c") {
+        Ok(v)
+    } else {
+        Err(err(format!("expected a finite number, found '{text}'")))
+    }
 }
 
 /// Bytes read per block by [`Recording::parse_from`].
@@ -452,13 +467,14 @@ struct Layout<'a> {
 
 /// Parses whole lines `region` (whose first line follows file line `line_before`) in parallel pieces, writing
 /// their rows into `targets` from row `base` on (lengthening them if needed); returns the file line number of its
-/// last line and the rows written.
+/// last line and the rows written. Pushes onto `blanks` the row (of the recording) after every empty line.
 fn parse_region(
     region: &[u8],
     line_before: usize,
     layout: &Layout,
     targets: &mut [Vec<f64>],
     base: usize,
+    blanks: &mut Vec<usize>,
 ) -> Result<(usize, usize), CsvError> {
     let parts = (rayon::current_num_threads() * 4).max(1);
     let mut pieces: Vec<&[u8]> = Vec::with_capacity(parts + 1);
@@ -510,17 +526,23 @@ fn parse_region(
                 .collect()
         })
         .collect();
-    let written: Vec<Result<usize, CsvError>> = pieces
+    let written: Vec<Result<(usize, Vec<usize>), CsvError>> = pieces
         .par_iter()
         .zip(views.par_iter_mut())
         .zip(first_lines.par_iter())
-        .map(|((piece, view), &first)| parse_chunk(piece, first, layout.names, view))
+        .map(|((piece, view), &first)| {
+            let mut empty = Vec::new();
+            parse_chunk(piece, first, layout.names, view, &mut empty).map(|n| (n, empty))
+        })
         .collect();
     drop(views);
     // Pieces with empty lines wrote fewer rows than they had room for: close the gaps.
     let mut counts = Vec::with_capacity(written.len());
     for w in written {
-        counts.push(w?);
+        let (n, empty) = w?;
+        let before = base + counts.iter().sum::<usize>();
+        blanks.extend(empty.into_iter().map(|r| before + r));
+        counts.push(n);
     }
     let total: usize = counts.iter().sum();
     if total != rows {
@@ -533,6 +555,63 @@ fn parse_region(
         }
     }
     Ok((line_no, total))
+}
+
+/// The UTF-8 byte-order mark.
+const UTF8_BOM: [u8; 3] = [0xEF, 0xBB, 0xBF];
+
+/// Checks the times (column `column` of the file; rows on the lines `line_of` gives): they must increase from
+/// row to row (an error with the line otherwise). Steps longer than 1.5 median intervals (lost samples) are
+/// counted in a warning: the analyses treat the samples as evenly spaced.
+fn check_time(
+    t: &[f64],
+    line_of: &dyn Fn(usize) -> usize,
+    column: usize,
+    warnings: &mut Vec<String>,
+) -> Result<(), CsvError> {
+    if let Some(i) = t.windows(2).position(|w| w[1] <= w[0]).map(|i| i + 1) {
+        return Err(CsvError::Cell {
+            line: line_of(i),
+            column,
+            name: "t".into(),
+            what: format!(
+                "time {} s is not after {} s on line {}: t must increase from row to row",
+                short(t[i]),
+                short(t[i - 1]),
+                line_of(i - 1)
+            ),
+        });
+    }
+    let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    if d.is_empty() {
+        return Ok(());
+    }
+    // As in [`Recording::sample_interval_s`].
+    let mid = d.len() / 2;
+    let median = *d.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let long = |x: f64| x > 1.5 * median;
+    let gaps = t.windows(2).filter(|w| long(w[1] - w[0])).count();
+    if let Some(i) = (1..t.len()).max_by(|&a, &b| (t[a] - t[a - 1]).total_cmp(&(t[b] - t[b - 1])))
+        && gaps > 0
+    {
+        warnings.push(format!(
+            "t: {gaps} gaps longer than 1.5 sample intervals ({} s; the longest {} s, before line {}): \
+             the analyses treat the samples as evenly spaced",
+            short(median),
+            short(t[i] - t[i - 1]),
+            line_of(i)
+        ));
+    }
+    Ok(())
+}
+
+/// `x` for a message: shortest round-trip form, in exponent form when very large or small.
+fn short(x: f64) -> String {
+    if x == 0.0 || (1e-4..1e15).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
 }
 
 /// What a column of the file is.
@@ -656,7 +735,11 @@ impl Recording {
             source,
         };
         let mut cur = Vec::new();
-        let mut eof = fill(&mut src, &mut cur, block).map_err(io)?;
+        let mut eof = fill(&mut src, &mut cur, block.max(UTF8_BOM.len())).map_err(io)?;
+        // A byte-order mark (spreadsheet programs write one) is not part of the first column's name.
+        if cur.starts_with(&UTF8_BOM) {
+            cur.drain(..UTF8_BOM.len());
+        }
         // The header: the first line that is not blank, complete in the buffer.
         let (header_line, header_end) = loop {
             match find_header(&cur, eof) {
@@ -733,9 +816,18 @@ impl Recording {
             roles.push(role);
         }
         if !has_t {
+            // A file with another separator has one long "name".
+            let other = [';', '\t', ' ', '|']
+                .into_iter()
+                .find(|&c| names.len() == 1 && header.contains(c));
             return Err(CsvError::Header {
                 line: header_line,
-                what: "no 't' column (time in seconds)".into(),
+                what: match other {
+                    Some(c) => format!(
+                        "no 't' column (time in seconds): the columns must be separated by commas, found {c:?}"
+                    ),
+                    None => "no 't' column (time in seconds)".into(),
+                },
             });
         }
         if columns.is_empty() {
@@ -767,6 +859,8 @@ impl Recording {
         let mut line_no = header_line;
         let mut next = Vec::new();
         let mut first = true;
+        // The row after every empty line of the body (for the line of a row).
+        let mut blanks = Vec::new();
         // Rows parsed so far (the columns may be longer: room reserved ahead).
         let mut filled = 0;
         loop {
@@ -801,7 +895,7 @@ impl Recording {
             next.clear();
             next.extend_from_slice(rest);
             let (parsed, read) = rayon::join(
-                || parse_region(region, line_no, &layout, &mut targets, filled),
+                || parse_region(region, line_no, &layout, &mut targets, filled, &mut blanks),
                 || {
                     if eof {
                         Ok(true)
@@ -822,6 +916,27 @@ impl Recording {
         }
         for t in &mut targets {
             t.truncate(filled);
+        }
+        if filled == 0 {
+            return Err(CsvError::Header {
+                line: header_line,
+                what: "no samples: no data row after the header".into(),
+            });
+        }
+        // File line of row r: the header, the rows and empty lines before it.
+        let line_of = |r: usize| header_line + 1 + r + blanks.partition_point(|&b| b <= r);
+        let column_of = |n: &str| names.iter().position(|x| *x == n).map_or(0, |i| i + 1);
+        let time = targets.first().map_or(&[][..], Vec::as_slice);
+        check_time(time, &line_of, column_of("t"), &mut warnings)?;
+        if let Some(temp) = targets.get(1).filter(|_| has_temp) {
+            let missing = temp.iter().filter(|x| x.is_nan()).count();
+            if let Some(first) = temp.iter().position(|x| x.is_nan()) {
+                warnings.push(format!(
+                    "temp_c: {missing} of {} samples have no temperature (NaN), the first on line {}",
+                    temp.len(),
+                    line_of(first)
+                ));
+            }
         }
         let mut targets = targets.into_iter();
         let mut rec = Recording {
