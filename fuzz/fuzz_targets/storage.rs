@@ -14,100 +14,16 @@
 
 use arbitrary::Arbitrary;
 
-use embedded_storage::nor_flash::{ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash};
 use libfuzzer_sys::fuzz_target;
 use shared::calib::{CalibrationTable, encoded_len_max};
 use shared::crc::Crc32c;
+use shared::storage::mock::{ERASE, MockError, MockFlash};
 use shared::storage::{CalStore, MAGIC, StoreError, is_newer};
 use shared::wire::frame::GROUPS as G;
 
-const ERASE: usize = 1024;
 const SLOT_BLOCKS: usize = 3;
 const SLOT: usize = SLOT_BLOCKS * ERASE;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum MockError {
-    PowerCut,
-    NotErased,
-    OutOfBounds,
-}
-
-impl NorFlashError for MockError {
-    fn kind(&self) -> NorFlashErrorKind {
-        match self {
-            MockError::OutOfBounds => NorFlashErrorKind::OutOfBounds,
-            _ => NorFlashErrorKind::Other,
-        }
-    }
-}
-
-/// 4-byte words, 1 KiB erase blocks; power cut after `budget` operations (block erase or word write). A cut erase
-/// leaves its block half erased, half garbage. (The same model as `shared`'s storage tests.)
-#[derive(Clone)]
-struct MockFlash {
-    mem: Vec<u8>,
-    budget: Option<usize>,
-    ops: usize,
-}
-
-impl MockFlash {
-    fn step(&mut self) -> Result<(), MockError> {
-        if self.budget.is_some_and(|b| self.ops >= b) {
-            return Err(MockError::PowerCut);
-        }
-        self.ops += 1;
-        Ok(())
-    }
-}
-
-impl ErrorType for MockFlash {
-    type Error = MockError;
-}
-
-impl ReadNorFlash for MockFlash {
-    const READ_SIZE: usize = 1;
-    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), MockError> {
-        let src = self
-            .mem
-            .get(offset as usize..offset as usize + bytes.len())
-            .ok_or(MockError::OutOfBounds)?;
-        bytes.copy_from_slice(src);
-        Ok(())
-    }
-    fn capacity(&self) -> usize {
-        self.mem.len()
-    }
-}
-
-impl NorFlash for MockFlash {
-    const WRITE_SIZE: usize = 4;
-    const ERASE_SIZE: usize = ERASE;
-    fn erase(&mut self, from: u32, to: u32) -> Result<(), MockError> {
-        for block in (from as usize..to as usize).step_by(ERASE) {
-            let cut = self.step();
-            let b = self.mem.get_mut(block..block + ERASE).ok_or(MockError::OutOfBounds)?;
-            if cut.is_err() {
-                b[..ERASE / 2].fill(0xFF);
-                b[ERASE / 2..].iter_mut().enumerate().for_each(|(i, x)| *x = (i * 7 + 3) as u8);
-                return cut;
-            }
-            b.fill(0xFF);
-        }
-        Ok(())
-    }
-    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), MockError> {
-        for (i, word) in bytes.chunks(4).enumerate() {
-            self.step()?;
-            let at = offset as usize + 4 * i;
-            let dst = self.mem.get_mut(at..at + word.len()).ok_or(MockError::OutOfBounds)?;
-            if dst.iter().any(|&b| b != 0xFF) {
-                return Err(MockError::NotErased);
-            }
-            dst.copy_from_slice(word);
-        }
-        Ok(())
-    }
-}
 
 #[derive(Arbitrary, Debug, Clone, Copy)]
 struct TableSpec {

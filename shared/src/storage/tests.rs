@@ -1,116 +1,19 @@
 use super::*;
 use crate::calib::encoded_len_max;
-use embedded_storage::nor_flash::ReadNorFlash;
-use embedded_storage::nor_flash::{ErrorType, NorFlashError, NorFlashErrorKind};
+use embedded_storage::nor_flash::{ErrorType, ReadNorFlash};
 
 extern crate std;
 use std::vec;
 use std::vec::Vec;
 
-const ERASE: usize = 1024;
 const SLOT_BLOCKS: usize = 3;
 const G: usize = 16;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum MockError {
-    PowerCut,
-    /// A write to bytes that were not erased: a logic error of the store.
-    NotErased,
-    OutOfBounds,
-}
+use super::mock::{ERASE, MockError, MockFlash};
 
-impl NorFlashError for MockError {
-    fn kind(&self) -> NorFlashErrorKind {
-        match self {
-            MockError::OutOfBounds => NorFlashErrorKind::OutOfBounds,
-            _ => NorFlashErrorKind::Other,
-        }
-    }
-}
-
-/// NOR flash with 4-byte words and 1 KiB erase blocks whose power can be cut after `budget` operations (one
-/// operation = one block erase or one word write). An interrupted erase leaves its block half erased, half garbage.
-#[derive(Clone)]
-struct MockFlash {
-    mem: Vec<u8>,
-    budget: Option<usize>,
-    ops: usize,
-}
-
-impl MockFlash {
-    fn new() -> Self {
-        Self {
-            mem: vec![0xFF; 2 * SLOT_BLOCKS * ERASE],
-            budget: None,
-            ops: 0,
-        }
-    }
-
-    fn step(&mut self) -> Result<(), MockError> {
-        if self.budget.is_some_and(|b| self.ops >= b) {
-            return Err(MockError::PowerCut);
-        }
-        self.ops += 1;
-        Ok(())
-    }
-}
-
-impl ErrorType for MockFlash {
-    type Error = MockError;
-}
-
-impl ReadNorFlash for MockFlash {
-    const READ_SIZE: usize = 1;
-    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), MockError> {
-        let src = self
-            .mem
-            .get(offset as usize..offset as usize + bytes.len())
-            .ok_or(MockError::OutOfBounds)?;
-        bytes.copy_from_slice(src);
-        Ok(())
-    }
-    fn capacity(&self) -> usize {
-        self.mem.len()
-    }
-}
-
-impl NorFlash for MockFlash {
-    const WRITE_SIZE: usize = 4;
-    const ERASE_SIZE: usize = ERASE;
-    fn erase(&mut self, from: u32, to: u32) -> Result<(), MockError> {
-        for block in (from as usize..to as usize).step_by(ERASE) {
-            let cut = self.step();
-            let b = self
-                .mem
-                .get_mut(block..block + ERASE)
-                .ok_or(MockError::OutOfBounds)?;
-            if cut.is_err() {
-                b[..ERASE / 2].fill(0xFF);
-                b[ERASE / 2..]
-                    .iter_mut()
-                    .enumerate()
-                    .for_each(|(i, x)| *x = (i * 7 + 3) as u8);
-                return cut;
-            }
-            b.fill(0xFF);
-        }
-        Ok(())
-    }
-    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), MockError> {
-        for (i, word) in bytes.chunks(4).enumerate() {
-            self.step()?;
-            let at = offset as usize + 4 * i;
-            let dst = self
-                .mem
-                .get_mut(at..at + word.len())
-                .ok_or(MockError::OutOfBounds)?;
-            if dst.iter().any(|&b| b != 0xFF) {
-                return Err(MockError::NotErased);
-            }
-            dst.copy_from_slice(word);
-        }
-        Ok(())
-    }
+/// The test flash: two slots of `SLOT_BLOCKS` erase blocks.
+fn new_flash() -> MockFlash {
+    MockFlash::erased(2 * SLOT_BLOCKS)
 }
 
 fn table(id: u32) -> CalibrationTable<G> {
@@ -135,7 +38,7 @@ fn load(flash: MockFlash) -> Loaded<G> {
 
 #[test]
 fn empty_flash_loads_the_factory_default() {
-    let l = load(MockFlash::new());
+    let l = load(new_flash());
     assert_eq!(
         (l.table, l.seq, l.slots),
         (CalibrationTable::factory(), None, [SlotState::Empty; 2])
@@ -144,7 +47,7 @@ fn empty_flash_loads_the_factory_default() {
 
 #[test]
 fn updates_alternate_slots_and_the_newest_wins() {
-    let mut store = CalStore::new(MockFlash::new()).unwrap();
+    let mut store = CalStore::new(new_flash()).unwrap();
     let mut s = scratch();
     assert_eq!(store.store(&table(1), &mut s), Ok(1));
     assert_eq!(store.store(&table(2), &mut s), Ok(2));
@@ -195,7 +98,7 @@ fn an_undecodable_newer_record_is_not_current_for_store_either() {
     // Slot A: the table that loads (seq 5). Slot B: a newer record with a valid CRC whose table does not decode.
     // `load` skips B; `store` must also treat A as current and write into B, so that a power cut at any step still
     // leaves A's table (before the fix it erased A, the only loadable record, and a cut left the factory default).
-    let mut flash = MockFlash::new();
+    let mut flash = new_flash();
     put_record(&mut flash, 0, 5, 1);
     put_undecodable_record(&mut flash, 1, 6);
     let l = load(flash.clone());
@@ -206,7 +109,7 @@ fn an_undecodable_newer_record_is_not_current_for_store_either() {
 #[test]
 fn the_update_after_sequence_number_u32_max_is_the_one_loaded() {
     // Slot A holds seq 0xFFFFFFFF; the next update is seq 0 in slot B, and it is newer (serial-number arithmetic).
-    let mut flash = MockFlash::new();
+    let mut flash = new_flash();
     put_record(&mut flash, 0, u32::MAX, 1);
     assert_eq!(load(flash.clone()).seq, Some(u32::MAX));
     let mut store = CalStore::new(flash).unwrap();
@@ -247,7 +150,7 @@ fn updates_from_any_sequence_number_alternate_slots_and_the_newest_wins() {
     ];
     for start in starts {
         for first_slot in 0..2 {
-            let mut flash = MockFlash::new();
+            let mut flash = new_flash();
             put_record(&mut flash, first_slot, start, 1);
             let mut store = CalStore::new(flash).unwrap();
             let mut s = scratch();
@@ -291,7 +194,7 @@ fn sequence_numbers_compare_as_serial_numbers() {
 fn records_neither_newer_than_the_other_count_slot_a_in_load_and_store() {
     // Equal, or 2³¹ apart: load takes slot A, and store (agreeing) writes slot B with A's seq + 1.
     for b_seq in [5, 0x8000_0005] {
-        let mut flash = MockFlash::new();
+        let mut flash = new_flash();
         put_record(&mut flash, 0, 5, 1);
         put_record(&mut flash, 1, b_seq, 2);
         let l = load(flash.clone());
@@ -309,7 +212,7 @@ fn records_neither_newer_than_the_other_count_slot_a_in_load_and_store() {
 
 #[test]
 fn a_damaged_record_falls_back_to_the_other_slot() {
-    let mut store = CalStore::new(MockFlash::new()).unwrap();
+    let mut store = CalStore::new(new_flash()).unwrap();
     let mut s = scratch();
     store.store(&table(1), &mut s).unwrap();
     store.store(&table(2), &mut s).unwrap(); // in slot B
@@ -325,13 +228,13 @@ fn a_damaged_record_falls_back_to_the_other_slot() {
 #[test]
 fn power_cut_at_every_step_always_loads_a_valid_calibration() {
     // Three consecutive updates (slot A, B, A again) from an empty flash; power cut at every operation of each.
-    cut_power_at_every_step_of_updates(MockFlash::new(), None, 1..=3);
+    cut_power_at_every_step_of_updates(new_flash(), None, 1..=3);
 }
 
 #[test]
 fn power_cut_at_every_step_across_the_sequence_number_wrap() {
     // Slot A holds seq 0xFFFFFFFE; three updates (B, A, B) write seqs 0xFFFFFFFF, 0, 1.
-    let mut flash = MockFlash::new();
+    let mut flash = new_flash();
     put_record(&mut flash, 0, u32::MAX - 1, 1);
     cut_power_at_every_step_of_updates(flash, Some(table(1)), 2..=4);
 }
@@ -406,7 +309,7 @@ fn a_length_word_near_u32_max_is_invalid_on_any_usize() {
         (SLOT_BLOCKS * ERASE - HEADER_LEN - CRC_LEN + 1) as u32,
     ];
     for length in lengths {
-        let mut flash = MockFlash::new();
+        let mut flash = new_flash();
         put_record(&mut flash, 0, 7, 1);
         let b = SLOT_BLOCKS * ERASE;
         flash.mem[b..b + 4].copy_from_slice(&MAGIC.to_le_bytes());
@@ -468,7 +371,7 @@ proptest::proptest! {
         length in proptest::prelude::any::<u32>(),
         set_length in proptest::prelude::any::<bool>(),
     ) {
-        let mut store = CalStore::new(MockFlash::new()).unwrap();
+        let mut store = CalStore::new(new_flash()).unwrap();
         store.store(&table(1), &mut scratch()).unwrap();
         store.store(&table(2), &mut scratch()).unwrap(); // slot B
         let mut flash = store.into_inner();
@@ -496,7 +399,7 @@ proptest::proptest! {
         b in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..200),
         magic in proptest::prelude::any::<bool>(),
     ) {
-        let mut flash = MockFlash::new();
+        let mut flash = new_flash();
         for (slot, bytes) in [(0, &a), (SLOT_BLOCKS * ERASE, &b)] {
             flash.mem[slot..slot + bytes.len()].copy_from_slice(bytes);
             if magic && bytes.len() >= 4 {
