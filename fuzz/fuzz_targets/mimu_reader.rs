@@ -12,6 +12,9 @@
 //! * a stream of the acknowledgement and valid consecutive frames parses to exactly those frames.
 #![no_main]
 
+#[path = "common/mod.rs"]
+mod common;
+
 use arbitrary::Arbitrary;
 use host_test::mimu::{self, ACK, FRAME_LEN, Frame, ImuSample, ParseOptions, TICKS_PER_SAMPLE};
 use libfuzzer_sys::fuzz_target;
@@ -50,15 +53,11 @@ fn frame(packet: u16, timestamp: u32, seed: u16) -> Frame {
 }
 
 fuzz_target!(|data: &[u8]| {
-    // Seeds from real recordings: 'R' ++ bytes is the raw form; anything else is read with `arbitrary`.
-    let input = match data.split_first() {
-        Some((b'R', rest)) => Input { pieces: vec![Piece::Raw(rest.to_vec())], max_skipped: 128 },
-        _ => match Input::arbitrary_take_rest(arbitrary::Unstructured::new(data)) {
-            Ok(i) => i,
-            Err(_) => return,
-        },
-    };
-    check(input);
+    // Seeds from real recordings: 'R' ++ bytes is the raw form.
+    let raw = |rest: &[u8]| Input { pieces: vec![Piece::Raw(rest.to_vec())], max_skipped: 128 };
+    if let Some(input) = common::input(data, raw) {
+        check(input);
+    }
 });
 
 fn check(input: Input) {

@@ -12,6 +12,9 @@
 //! * the store never writes to a word that is not erased (the mock flash refuses).
 #![no_main]
 
+#[path = "common/mod.rs"]
+mod common;
+
 use arbitrary::Arbitrary;
 
 use libfuzzer_sys::fuzz_target;
@@ -118,16 +121,10 @@ fn boot(mem: &[u8]) -> shared::storage::Loaded<G> {
 }
 
 fuzz_target!(|data: &[u8]| {
-    // Seeds from real encodings: 'R' ++ bytes is the raw form (see `Input::raw`); anything else is read with
-    // `arbitrary`.
-    let input = match data.split_first() {
-        Some((b'R', rest)) => Input::raw(rest),
-        _ => match Input::arbitrary_take_rest(arbitrary::Unstructured::new(data)) {
-            Ok(i) => i,
-            Err(_) => return,
-        },
-    };
-    check(input);
+    // Seeds from real encodings: 'R' ++ bytes is the raw form (see `Input::raw`).
+    if let Some(input) = common::input(data, Input::raw) {
+        check(input);
+    }
 });
 
 fn check(input: Input) {

@@ -54,16 +54,10 @@ fn run(decoder: &mut FrameDecoder, chunks: &[&[u8]]) -> Vec<Decoded> {
 }
 
 fuzz_target!(|data: &[u8]| {
-    // Seeds from real encodings: 'R' ++ bytes is the raw form (see `Input::raw`); anything else is read with
-    // `arbitrary`.
-    let input = match data.split_first() {
-        Some((b'R', rest)) => Input::raw(rest),
-        _ => match Input::arbitrary_take_rest(arbitrary::Unstructured::new(data)) {
-            Ok(i) => i,
-            Err(_) => return,
-        },
-    };
-    check(input);
+    // Seeds from real encodings: 'R' ++ bytes is the raw form (see `Input::raw`).
+    if let Some(input) = common::input(data, Input::raw) {
+        check(input);
+    }
 });
 
 fn check(input: Input) {

@@ -4,6 +4,15 @@
 use arbitrary::Arbitrary;
 use shared::wire::frame::{FrameRepr, GROUPS, RAW_PER_GROUP};
 
+/// A target's input: `'R' ++ bytes` is the raw form, `raw(bytes)` (how the seeds made from real encodings reach a
+/// structured target); anything else is read with `arbitrary`. `None` when `arbitrary` cannot build one.
+pub fn input<'a, T: Arbitrary<'a>>(data: &'a [u8], raw: impl FnOnce(&'a [u8]) -> T) -> Option<T> {
+    match data.split_first() {
+        Some((b'R', rest)) => Some(raw(rest)),
+        _ => T::arbitrary_take_rest(arbitrary::Unstructured::new(data)).ok(),
+    }
+}
+
 /// Splits `data` into chunks whose sizes cycle through `sizes` (0 counts as 1; no sizes = one chunk).
 pub fn chunks<'a>(data: &'a [u8], sizes: &[u16]) -> Vec<&'a [u8]> {
     if sizes.is_empty() {
