@@ -381,10 +381,7 @@ type Diagnosed = (Vec<String>, Option<(String, f64)>);
 fn diagnose_record(rec: &crate::formats::Recording, dir: &Path) -> Result<Diagnosed> {
     use crate::diagnose::{Options, diagnose, report};
     let r = diagnose(rec, &Options::default()).map_err(anyhow::Error::msg)?;
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let source = "the demo's simulated record";
-    std::fs::write(dir.join("report.txt"), report::text(&r, source))?;
-    report::plot(&r, &dir.join("diagnose.png"), source).map_err(anyhow::Error::msg)?;
+    report::write(&r, dir, "the demo's simulated record").map_err(anyhow::Error::msg)?;
     std::fs::write(dir.join("diagnose.json"), serde_json::to_string_pretty(&r)?)?;
     let flicker = r
         .effects

@@ -820,16 +820,13 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
     };
     let r = diagnose::diagnose(&loaded.recording, &opts).map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let source = a.recording.display().to_string();
-    let text = report::text(&r, &source);
-    std::fs::write(a.out.join("report.txt"), &text)?;
-    report::plot(&r, &a.out.join("diagnose.png"), &source).map_err(anyhow::Error::msg)?;
+    let text = report::write(&r, &a.out, &source).map_err(anyhow::Error::msg)?;
     print!("{text}");
     println!(
         "\nreport: {}, plot: {}",
-        a.out.join("report.txt").display(),
-        a.out.join("diagnose.png").display()
+        a.out.join(report::TEXT_FILE).display(),
+        a.out.join(report::PLOT_FILE).display()
     );
     if let Some(j) = &a.json {
         std::fs::write(j, serde_json::to_string_pretty(&r)?)

@@ -532,24 +532,6 @@ impl Half {
     fn len(&self) -> usize {
         self.tau_s.len()
     }
-
-    /// The measured cluster deviation with 68 % intervals.
-    fn measured(&self) -> Measured {
-        let mut m = Measured::default();
-        for k in 0..self.len() {
-            let dev = self.cluster[k].sqrt();
-            let (lo, hi) =
-                crate::allan::confidence_interval(dev, self.edf[k], crate::allan::ONE_SIGMA_CI)
-                    .unwrap_or((dev, dev));
-            m.tau_s.push(self.tau_s[k]);
-            m.dev.push(dev);
-            m.lo.push(lo);
-            m.hi.push(hi);
-            m.edf.push(self.edf[k]);
-            m.sigma_ln.push(1.0 / (2.0 * self.edf[k]).sqrt());
-        }
-        m
-    }
 }
 
 /// The gap of one τ point.
@@ -925,6 +907,8 @@ fn threshold(cache: &mut BTreeMap<(usize, u64), f64>, n: usize, p: f64) -> f64 {
 struct AxisState {
     hf: Half,
     hw: Half,
+    /// The sensors' octave OADEV of the whole record.
+    pts_whole: Vec<Vec<AnalysisPoint>>,
     hh: Half,
     cands: Vec<Candidate>,
     chosen: Vec<usize>,
@@ -1172,6 +1156,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
         states.push(AxisState {
             hf,
             hw,
+            pts_whole,
             hh,
             cands,
             chosen,
@@ -1240,6 +1225,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
         let AxisState {
             hf,
             hw,
+            pts_whole,
             hh,
             cands,
             chosen,
@@ -1276,7 +1262,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
         let (taus, independence) = tau_rows(&hh, &wts, &p0, &model, &before, &after);
         let label = axis_label(w.kind, w.axis);
         let regions = regions(&typ_terms, &hh, &before, &after, opts.z);
-        let (rms_gain, bias_stability_gain) = gains(&mut an, &w.series, &wts, tau0);
+        let (rms_gain, bias_stability_gain) = gains(&mut an, &w.series, &pts_whole, &wts, tau0);
         let weighting_recovers = if hh.len() > 0 {
             let inv: Vec<f64> = model.level.iter().map(|q| 1.0 / q.max(1e-300)).collect();
             let sum: f64 = inv.iter().sum();
@@ -1308,7 +1294,14 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
             axis: label.clone(),
             before: taus.iter().map(|r| r.predicted_before).collect(),
             after: taus.iter().map(|r| r.predicted_after).collect(),
-            measured: hh.measured(),
+            measured: Measured {
+                tau_s: taus.iter().map(|r| r.tau_s).collect(),
+                dev: taus.iter().map(|r| r.dev).collect(),
+                lo: taus.iter().map(|r| r.dev_lo).collect(),
+                hi: taus.iter().map(|r| r.dev_hi).collect(),
+                edf: taus.iter().map(|r| r.edf).collect(),
+                sigma_ln: taus.iter().map(|r| 1.0 / (2.0 * r.edf).sqrt()).collect(),
+            },
         });
         axes.push(AxisReport {
             axis: label,
@@ -1493,7 +1486,6 @@ fn candidates(
                         members: c.clone(),
                         share: Share {
                             part: s,
-                            shared_all: s,
                             independent: e,
                         },
                     });
@@ -1573,7 +1565,6 @@ fn candidates(
                     members: all.clone(),
                     share: Share {
                         part,
-                        shared_all: part,
                         independent: e,
                     },
                 }],
@@ -1703,8 +1694,15 @@ fn regions(typ: &Terms, h: &Half, before: &[PointGap], after: &[PointGap], z: f6
     out
 }
 
-/// RMS-noise and bias-stability gains of the whole record, with 68 % intervals.
-fn gains(an: &mut Analyzer, series: &[&[f64]], w: &[f64], tau0: f64) -> (Gain, Gain) {
+/// RMS-noise and bias-stability gains of the whole record, with 68 % intervals (`singles`: the sensors' octave
+/// OADEV of the whole record, as measured for the significance test).
+fn gains(
+    an: &mut Analyzer,
+    series: &[&[f64]],
+    singles: &[Vec<AnalysisPoint>],
+    w: &[f64],
+    tau0: f64,
+) -> (Gain, Gain) {
     let std = |x: &[f64]| {
         let m = x.iter().sum::<f64>() / x.len().max(1) as f64;
         (x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (x.len().max(2) - 1) as f64).sqrt()
@@ -1727,10 +1725,7 @@ fn gains(an: &mut Analyzer, series: &[&[f64]], w: &[f64], tau0: f64) -> (Gain, G
             .min_by(|a, b| a.dev.total_cmp(&b.dev))
             .cloned()
     };
-    let singles: Vec<AnalysisPoint> = series
-        .iter()
-        .filter_map(|s| min(&octave(an, s, tau0)))
-        .collect();
+    let singles: Vec<AnalysisPoint> = singles.iter().filter_map(|p| min(p)).collect();
     let single_min = median(&singles.iter().map(|p| p.dev).collect::<Vec<_>>());
     let Some(c) = min(&cluster) else {
         return (rms_gain, Gain::default());

@@ -68,18 +68,16 @@ impl Terms {
 /// The share of a typical sensor's Allan variance that a process shared by some sensors accounts for.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Share {
-    /// The shared terms this effect models (a subset of `shared_all`).
+    /// The shared terms this effect models.
     pub part: Terms,
-    /// All shared terms fitted for these members.
-    pub shared_all: Terms,
     /// The independent part of the members' variance.
     pub independent: Terms,
 }
 
 impl Share {
-    /// `part(τ) / (shared_all(τ) + independent(τ))`, in [0, 1].
+    /// `part(τ) / (part(τ) + independent(τ))`, in [0, 1].
     pub fn at(&self, tau_s: f64) -> f64 {
-        let den = self.shared_all.avar(tau_s) + self.independent.avar(tau_s);
+        let den = self.part.avar(tau_s) + self.independent.avar(tau_s);
         if den > 0.0 {
             (self.part.avar(tau_s) / den).clamp(0.0, 1.0)
         } else {
@@ -160,7 +158,6 @@ mod tests {
         let (s, e) = (3.0, 5.0);
         let share = Share {
             part: Terms([0.0, 0.0, s, 0.0, 0.0]),
-            shared_all: Terms([0.0, 0.0, s, 0.0, 0.0]),
             independent: Terms([0.0, 0.0, e, 0.0, 0.0]),
         };
         let m = Model {

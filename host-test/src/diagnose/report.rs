@@ -5,6 +5,22 @@ use crate::plot::{self, Curve, Panel, Style};
 use std::fmt::Write as _;
 use std::path::Path;
 
+/// Report file name inside the output folder.
+pub const TEXT_FILE: &str = "report.txt";
+/// Plot file name inside the output folder.
+pub const PLOT_FILE: &str = "diagnose.png";
+
+/// Writes the text report and the plot into `dir` (created if missing); returns the text.
+pub fn write(r: &Report, dir: &Path, source: &str) -> Result<String, String> {
+    let err = |what: &Path, e: std::io::Error| format!("writing {}: {e}", what.display());
+    std::fs::create_dir_all(dir).map_err(|e| err(dir, e))?;
+    let text = text(r, source);
+    let path = dir.join(TEXT_FILE);
+    std::fs::write(&path, &text).map_err(|e| err(&path, e))?;
+    plot(r, &dir.join(PLOT_FILE), source)?;
+    Ok(text)
+}
+
 /// The text report.
 pub fn text(r: &Report, source: &str) -> String {
     let mut s = String::new();
