@@ -1,19 +1,28 @@
 //! The application, independent of the board: every loop is generic over `embedded_io_async::{Read, Write}`,
-//! `embedded_hal::digital::OutputPin` and `embedded_storage::nor_flash::NorFlash`, so the same code runs on the
-//! STM32F405 and, next, on an emulated Cortex-M4 in QEMU. All processing is `shared::Pipeline`'s; these loops
-//! only move bytes and messages:
+//! `embedded_hal::digital::OutputPin` and `embedded_storage::nor_flash::NorFlash`, and shares one [`App`], so the
+//! same code runs on the STM32F405 (spawned as embassy tasks by `main.rs`) and on the PC (`crate::sim`: the SITL
+//! binary and the scenario tests). All processing is `shared::Pipeline`'s; these loops only move bytes and messages:
 //!
 //! ```text
-//! FPGA RX ──► link_loop ──► Pipeline ◄── bus_rx_loop ◄── bus RX (commands, ping)
-//!                 │            │ poll_dump              │
-//!                 ▼            ▼                        ▼
-//!            OUT channel ───────────────► bus_tx_loop ──► bus TX (telemetry, acks, ping replies)
-//!            FPGA_CTRL ──► fpga_ctrl_loop ──► FPGA TX      PERSIST ──► storage_loop ──► flash
+//! FPGA RX ──► link_loop ──► Pipeline ◄── bus_rx_loop ◄── bus RX (commands, pings)
+//!                 │ (never waits)  │ poll_dump         │ (acks, ping replies: waits for room)
+//!                 ▼                ▼                   ▼
+//!           telemetry queue ───► bus_tx_loop ◄── reply queue          bus TX ◄── bus_tx_loop
+//!           fpga queue ──► fpga_ctrl_loop ──► FPGA TX     persist ──► storage_loop ──► flash
+//!           housekeeping_loop: Health when the link is silent     watchdog_loop: feeds only if all progress
 //! ```
+//!
+//! # Back-pressure
+//! The FPGA link is never held up by the bus: the link loop routes the pipeline's outputs with `try_send`, and a
+//! telemetry message that finds the queue full is dropped and counted in Health (`telemetry_dropped`). At
+//! 115200 baud the bus carries ≈ 11.5 kB/s; the default stream (18.9 reports/s) needs ≈ 1.2 kB/s, one report per
+//! frame (`SetOutputRate(1)`, 604.8 /s) ≈ 37 kB/s, of which two thirds are dropped. Acks and ping replies have
+//! their own queue, which the bus receiver waits on, so they are never dropped: a command is answered exactly once.
 
 use core::num::NonZeroU64;
 use core::sync::atomic::{AtomicU32, Ordering};
 
+use embassy_futures::select::{Either, select};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_sync::mutex::Mutex;
@@ -27,12 +36,13 @@ use shared::bus::{BusConfig, BusEvent, BusNode, MAX_PAYLOAD, MAX_WIRE_FRAME};
 use shared::calib::encoded_len_max;
 use shared::pipeline::{AllanBank, Output, Pipeline};
 use shared::storage::CalStore;
-use shared::telemetry::{MAX_MESSAGE_LEN, Telemetry, encode};
+use shared::telemetry::{CalSource, MAX_MESSAGE_LEN, Telemetry, encode};
 use shared::wire::FpgaControl;
 use shared::wire::frame::GROUPS;
 
-/// The pipeline as the tasks share it.
-pub type SharedPipeline = Mutex<CriticalSectionRawMutex, Pipeline<&'static mut AllanBank>>;
+use crate::log::Loggable;
+
+type Raw = CriticalSectionRawMutex;
 
 /// Longest a loop may wait before it reports progress anyway (an idle line is not a fault, a stuck task is).
 pub const IDLE_TIMEOUT: Duration = Duration::from_millis(100);
@@ -40,6 +50,12 @@ pub const IDLE_TIMEOUT: Duration = Duration::from_millis(100);
 pub const LINK_CHUNK: usize = 1024;
 /// Scratch for the calibration store: record header, encoded table, CRC.
 pub const CAL_SCRATCH: usize = encoded_len_max(GROUPS) + 16;
+/// Telemetry messages queued for the bus (≈ 0.85 s of the default stream).
+pub const TELEMETRY_QUEUE: usize = 16;
+/// Acks and ping replies queued for the bus.
+pub const REPLY_QUEUE: usize = 4;
+/// Health period while the FPGA link is silent.
+pub const SILENT_HEALTH_PERIOD: Duration = Duration::from_secs(1);
 
 /// Something for the bus transmitter.
 #[derive(Clone, Debug)]
@@ -55,31 +71,10 @@ pub enum BusOut {
     },
 }
 
-/// Messages for the bus transmitter.
-pub static OUT: Channel<CriticalSectionRawMutex, BusOut, 8> = Channel::new();
-/// Control messages for the FPGA.
-pub static FPGA_CTRL: Channel<CriticalSectionRawMutex, FpgaControl, 4> = Channel::new();
-/// "Store the calibration in force."
-pub static PERSIST: Signal<CriticalSectionRawMutex, ()> = Signal::new();
-
-/// Task progress counters, checked by the watchdog loop.
-pub static PROGRESS: [AtomicU32; 3] = [AtomicU32::new(0), AtomicU32::new(0), AtomicU32::new(0)];
-/// Index of the FPGA link loop's counter.
-pub const PROGRESS_LINK: usize = 0;
-/// Index of the bus receiver's counter.
-pub const PROGRESS_BUS_RX: usize = 1;
-/// Index of the bus transmitter's counter.
-pub const PROGRESS_BUS_TX: usize = 2;
-
-fn progress(i: usize) {
-    if let Some(p) = PROGRESS.get(i) {
-        p.fetch_add(1, Ordering::Relaxed);
-    }
-}
-
 /// Receive-error classes; the board maps its UART's error type onto these (`embedded_io::ErrorKind` says only
 /// `Other` for every embassy-stm32 USART error).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, defmt::Format)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum RxFault {
     /// Bytes lost: UART overrun, or the DMA ring was lapped.
     Overrun,
@@ -95,77 +90,209 @@ pub trait ClassifyRxError {
     fn classify(&self) -> RxFault;
 }
 
-/// Sends one pipeline output where it belongs.
-async fn route(o: Output) {
-    match o {
-        Output::Telemetry(t) => OUT.send(BusOut::Telemetry(t)).await,
-        Output::Fpga(c) => FPGA_CTRL.send(c).await,
-        Output::PersistCalibration => PERSIST.signal(()),
-    }
+/// Tasks whose progress the watchdog checks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Task {
+    /// [`link_loop`].
+    Link = 0,
+    /// [`bus_rx_loop`].
+    BusRx = 1,
+    /// [`bus_tx_loop`].
+    BusTx = 2,
 }
 
-/// Routes every queued output, one lock per output, never holding the lock while waiting for channel space.
-async fn drain(pipeline: &SharedPipeline) {
-    loop {
-        let next = pipeline.lock().await.poll();
-        match next {
-            Some(o) => route(o).await,
-            None => return,
+/// Counters of the shell (the pipeline counts everything else); wrapping.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ShellCounters {
+    /// FPGA receive errors: framing, noise or parity.
+    pub link_line_errors: u32,
+    /// FPGA receive errors of any other kind (overruns go to the pipeline's link counters).
+    pub link_other_errors: u32,
+    /// Bus receive errors.
+    pub bus_rx_errors: u32,
+    /// Bus transmit errors.
+    pub bus_tx_errors: u32,
+    /// FPGA control messages dropped (queue full).
+    pub fpga_ctrl_dropped: u32,
+    /// Calibration records stored.
+    pub cal_stores: u32,
+    /// Calibration stores that failed.
+    pub cal_store_errors: u32,
+    /// Health reports sent because the link was silent.
+    pub silent_health: u32,
+}
+
+#[derive(Default)]
+struct AtomicCounters([AtomicU32; 8]);
+
+#[derive(Clone, Copy)]
+enum Counter {
+    LinkLine = 0,
+    LinkOther,
+    BusRx,
+    BusTx,
+    FpgaDropped,
+    CalStores,
+    CalStoreErrors,
+    SilentHealth,
+}
+
+/// Everything the tasks share: the pipeline, the queues between the tasks, progress and counters.
+///
+/// On the MCU one `App` lives in a `static` (`&'static App<&'static mut AllanBank>`); on the host each run builds
+/// its own, so scenarios never share state.
+pub struct App<B> {
+    /// The flight core.
+    pub pipeline: Mutex<Raw, Pipeline<B>>,
+    bus: BusConfig,
+    telemetry: Channel<Raw, Telemetry, TELEMETRY_QUEUE>,
+    replies: Channel<Raw, BusOut, REPLY_QUEUE>,
+    fpga: Channel<Raw, FpgaControl, 4>,
+    persist: Signal<Raw, ()>,
+    progress: [AtomicU32; 3],
+    counters: AtomicCounters,
+}
+
+impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
+    /// The shared state around `pipeline`, for a node with bus configuration `bus`.
+    pub fn new(pipeline: Pipeline<B>, bus: BusConfig) -> Self {
+        Self {
+            pipeline: Mutex::new(pipeline),
+            bus,
+            telemetry: Channel::new(),
+            replies: Channel::new(),
+            fpga: Channel::new(),
+            persist: Signal::new(),
+            progress: Default::default(),
+            counters: AtomicCounters::default(),
+        }
+    }
+
+    /// The bus configuration.
+    pub fn bus_config(&self) -> BusConfig {
+        self.bus
+    }
+
+    /// How many times `task` went round its loop.
+    pub fn progress(&self, task: Task) -> u32 {
+        self.progress
+            .get(task as usize)
+            .map_or(0, |p| p.load(Ordering::Relaxed))
+    }
+
+    /// The shell's counters now.
+    pub fn counters(&self) -> ShellCounters {
+        let c = |i: Counter| {
+            self.counters
+                .0
+                .get(i as usize)
+                .map_or(0, |a| a.load(Ordering::Relaxed))
+        };
+        ShellCounters {
+            link_line_errors: c(Counter::LinkLine),
+            link_other_errors: c(Counter::LinkOther),
+            bus_rx_errors: c(Counter::BusRx),
+            bus_tx_errors: c(Counter::BusTx),
+            fpga_ctrl_dropped: c(Counter::FpgaDropped),
+            cal_stores: c(Counter::CalStores),
+            cal_store_errors: c(Counter::CalStoreErrors),
+            silent_health: c(Counter::SilentHealth),
+        }
+    }
+
+    fn count(&self, i: Counter) {
+        if let Some(a) = self.counters.0.get(i as usize) {
+            a.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    fn tick(&self, task: Task) {
+        if let Some(p) = self.progress.get(task as usize) {
+            p.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Sends one output where it belongs without waiting: telemetry that finds its queue full is dropped and counted
+    /// in the pipeline's health.
+    fn route(&self, p: &mut Pipeline<B>, o: Output) {
+        match o {
+            Output::Telemetry(t) => {
+                if self.telemetry.try_send(t).is_err() {
+                    p.note_telemetry_dropped(1);
+                }
+            }
+            Output::Fpga(c) => {
+                if self.fpga.try_send(c).is_err() {
+                    self.count(Counter::FpgaDropped);
+                }
+            }
+            Output::PersistCalibration => self.persist.signal(()),
+        }
+    }
+
+    /// Routes everything queued in the pipeline, without waiting.
+    fn route_all(&self, p: &mut Pipeline<B>) {
+        while let Some(o) = p.poll() {
+            self.route(p, o);
         }
     }
 }
 
-/// FPGA frames in: read the DMA ring, feed the pipeline, route its outputs. Receive errors are counted and never
-/// fatal: the driver restarts reception on the next read, and the frame decoder resynchronises.
-pub async fn link_loop<R>(rx: &mut R, pipeline: &SharedPipeline) -> !
+/// FPGA frames in: read the DMA ring, feed the pipeline, route its outputs. Never waits for the bus. Receive errors
+/// are counted and never fatal: the driver restarts reception on the next read, and the frame decoder
+/// resynchronises, so an error costs only the frames whose bytes it touched.
+pub async fn link_loop<B, R>(app: &App<B>, rx: &mut R) -> !
 where
+    B: core::borrow::BorrowMut<AllanBank>,
     R: Read,
-    R::Error: ClassifyRxError + defmt::Format,
+    R::Error: ClassifyRxError + Loggable,
 {
     let mut buf = [0u8; LINK_CHUNK];
-    let mut line_errors = 0u32;
     loop {
-        progress(PROGRESS_LINK);
+        app.tick(Task::Link);
         let n = match with_timeout(IDLE_TIMEOUT, rx.read(&mut buf)).await {
             Err(_idle) => continue,
             Ok(Ok(n)) => n,
             Ok(Err(e)) => {
                 match e.classify() {
-                    RxFault::Overrun => pipeline.lock().await.note_link_overruns(1),
-                    RxFault::Line | RxFault::Other => line_errors = line_errors.wrapping_add(1),
+                    RxFault::Overrun => app.pipeline.lock().await.note_link_overruns(1),
+                    RxFault::Line => app.count(Counter::LinkLine),
+                    RxFault::Other => app.count(Counter::LinkOther),
                 }
-                defmt::warn!("fpga link: rx error {} (line errors {})", e, line_errors);
+                warn!("fpga link: rx error {:?}", e);
                 continue;
             }
         };
         let mut input = buf.get(..n).unwrap_or(&[]);
+        let mut p = app.pipeline.lock().await;
+        p.set_uptime_ms(Instant::now().as_millis());
         while !input.is_empty() {
-            {
-                let mut p = pipeline.lock().await;
-                p.set_uptime_ms(Instant::now().as_millis());
-                p.push_link(&mut input);
-            }
-            drain(pipeline).await;
+            p.push_link(&mut input);
+            app.route_all(&mut p);
         }
     }
 }
 
-/// Bus bytes in: commands go to the pipeline (their acks are routed at once, even if the FPGA link is down), pings
-/// are answered.
-pub async fn bus_rx_loop<R>(rx: &mut R, pipeline: &SharedPipeline, config: BusConfig) -> !
+/// Bus bytes in: commands go to the pipeline, and their acks (with any report the command asked for) to the reply
+/// queue, waiting for room there; pings are answered the same way.
+pub async fn bus_rx_loop<B, R>(app: &App<B>, rx: &mut R) -> !
 where
+    B: core::borrow::BorrowMut<AllanBank>,
     R: Read,
-    R::Error: defmt::Format,
+    R::Error: Loggable,
 {
-    let mut node = BusNode::new(config);
+    let mut node = BusNode::new(app.bus);
     let mut buf = [0u8; 256];
     loop {
-        progress(PROGRESS_BUS_RX);
+        app.tick(Task::BusRx);
         let n = match with_timeout(IDLE_TIMEOUT, rx.read(&mut buf)).await {
             Err(_idle) => continue,
             Ok(Ok(n)) => n,
             Ok(Err(e)) => {
-                defmt::warn!("bus: rx error {}", e);
+                app.count(Counter::BusRx);
+                warn!("bus: rx error {:?}", e);
                 continue;
             }
         };
@@ -173,45 +300,72 @@ where
         while let Some(event) = node.receive(&mut input) {
             match event {
                 BusEvent::Command(payload) => {
-                    pipeline.lock().await.handle_command(payload);
-                    drain(pipeline).await;
+                    // The outbox is emptied first (frame outputs, routed as usual), so that everything in it after
+                    // `handle_command` is this command's: its ack first, then any report it asked for.
+                    let mut replies = heapless::Vec::<Telemetry, 2>::new();
+                    {
+                        let mut p = app.pipeline.lock().await;
+                        app.route_all(&mut p);
+                        p.handle_command(payload);
+                        while let Some(o) = p.poll() {
+                            match o {
+                                Output::Telemetry(t) => {
+                                    if let Err(t) = replies.push(t) {
+                                        app.route(&mut p, Output::Telemetry(t));
+                                    }
+                                }
+                                other => app.route(&mut p, other),
+                            }
+                        }
+                    }
+                    for t in replies {
+                        app.replies.send(BusOut::Telemetry(t)).await;
+                    }
                 }
                 BusEvent::Ping { header, payload } => {
                     let payload = heapless::Vec::from_slice(payload).unwrap_or_default();
-                    OUT.send(BusOut::PingReply { header, payload }).await;
+                    app.replies
+                        .send(BusOut::PingReply { header, payload })
+                        .await;
                 }
             }
         }
         let c = node.counters();
         if c.kiss_errors != 0 || c.csp_errors != 0 {
-            defmt::debug!("bus: {}", c);
+            debug!("bus: {:?}", c);
         }
     }
 }
 
-/// Bus bytes out: telemetry and ping replies as CSP packets in KISS frames. When nothing is queued it pulls the next
-/// report of a requested dump from the pipeline, so dumps go exactly as fast as the bus drains.
-pub async fn bus_tx_loop<W>(tx: &mut W, pipeline: &SharedPipeline, config: BusConfig) -> !
+/// Bus bytes out: replies first, then telemetry, then (when both queues are empty) the next report of a requested
+/// dump, so dumps go exactly as fast as the bus drains. CSP packets in KISS frames.
+pub async fn bus_tx_loop<B, W>(app: &App<B>, tx: &mut W) -> !
 where
+    B: core::borrow::BorrowMut<AllanBank>,
     W: Write,
-    W::Error: defmt::Format,
+    W::Error: Loggable,
 {
-    let node = BusNode::new(config);
+    let node = BusNode::new(app.bus);
     let mut payload = [0u8; MAX_MESSAGE_LEN];
     let mut wire = [0u8; MAX_WIRE_FRAME];
     loop {
-        progress(PROGRESS_BUS_TX);
-        let item = match OUT.try_receive() {
-            Ok(item) => item,
-            Err(_) => {
-                let dump = pipeline.lock().await.poll_dump();
-                match dump {
-                    Some(t) => BusOut::Telemetry(t),
-                    None => match with_timeout(IDLE_TIMEOUT, OUT.receive()).await {
-                        Ok(item) => item,
-                        Err(_idle) => continue,
-                    },
-                }
+        app.tick(Task::BusTx);
+        let item = if let Ok(r) = app.replies.try_receive() {
+            r
+        } else if let Ok(t) = app.telemetry.try_receive() {
+            BusOut::Telemetry(t)
+        } else if let Some(t) = app.pipeline.lock().await.poll_dump() {
+            BusOut::Telemetry(t)
+        } else {
+            match with_timeout(
+                IDLE_TIMEOUT,
+                select(app.replies.receive(), app.telemetry.receive()),
+            )
+            .await
+            {
+                Ok(Either::First(r)) => r,
+                Ok(Either::Second(t)) => BusOut::Telemetry(t),
+                Err(_idle) => continue,
             }
         };
         let frame = match &item {
@@ -225,76 +379,86 @@ where
         match frame {
             Ok(n) => {
                 if let Err(e) = tx.write_all(wire.get(..n).unwrap_or(&[])).await {
-                    defmt::warn!("bus: tx error {}", e);
+                    app.count(Counter::BusTx);
+                    warn!("bus: tx error {:?}", e);
                 }
             }
-            Err(()) => defmt::error!("bus: a message did not fit a frame"),
+            Err(()) => error!("bus: a message did not fit a frame"),
         }
     }
 }
 
 /// Control messages to the FPGA.
-pub async fn fpga_ctrl_loop<W>(tx: &mut W) -> !
+pub async fn fpga_ctrl_loop<B, W>(app: &App<B>, tx: &mut W) -> !
 where
     W: Write,
-    W::Error: defmt::Format,
+    W::Error: Loggable,
 {
     loop {
-        let msg = FPGA_CTRL.receive().await;
-        defmt::info!("fpga: {}", msg);
+        let msg = app.fpga.receive().await;
+        info!("fpga: {:?}", msg);
         if let Err(e) = tx.write_all(&msg.to_bytes()).await {
-            defmt::warn!("fpga: control tx error {}", e);
+            warn!("fpga: control tx error {:?}", e);
         }
     }
 }
 
 /// Loads the stored calibration into the pipeline (newest valid record, else the factory default).
-pub fn load_calibration<F: NorFlash>(
+pub fn load_calibration<F: NorFlash, B: core::borrow::BorrowMut<AllanBank>>(
     store: &mut CalStore<F>,
-    pipeline: &mut Pipeline<&'static mut AllanBank>,
+    pipeline: &mut Pipeline<B>,
 ) where
-    F::Error: defmt::Format,
+    F::Error: Loggable,
 {
     let mut scratch = [0u8; CAL_SCRATCH];
     match store.load::<GROUPS>(&mut scratch) {
         Ok(loaded) => {
             let source = match loaded.seq {
-                Some(_) => shared::telemetry::CalSource::Stored,
-                None => shared::telemetry::CalSource::Factory,
+                Some(_) => CalSource::Stored,
+                None => CalSource::Factory,
             };
-            defmt::info!(
-                "calibration: id {} from {} (seq {}, slots {})",
-                loaded.table.cal_id,
-                source,
-                loaded.seq,
-                loaded.slots
+            info!(
+                "calibration: id {:?} from {:?} (seq {:?}, slots {:?})",
+                loaded.table.cal_id, source, loaded.seq, loaded.slots
             );
             pipeline.load_calibration(loaded.table, source);
         }
-        Err(e) => defmt::error!("calibration: flash read failed ({}), factory default", e),
+        Err(e) => error!("calibration: flash read failed ({:?}), factory default", e),
     }
 }
 
 /// Persists the calibration in force whenever an upload is committed.
-pub async fn storage_loop<F: NorFlash>(store: &mut CalStore<F>, pipeline: &SharedPipeline) -> !
+pub async fn storage_loop<B, F>(app: &App<B>, store: &mut CalStore<F>) -> !
 where
-    F::Error: defmt::Format,
+    B: core::borrow::BorrowMut<AllanBank>,
+    F: NorFlash,
+    F::Error: Loggable,
 {
     let mut scratch = [0u8; CAL_SCRATCH];
     loop {
-        PERSIST.wait().await;
-        let table = *pipeline.lock().await.calibration();
+        app.persist.wait().await;
+        let table = *app.pipeline.lock().await.calibration();
         // The erase stalls the CPU (single-bank flash): FPGA bytes arriving meanwhile overrun the ring and are
         // counted; the watchdog timeout covers the stall.
         match store.store(&table, &mut scratch) {
-            Ok(seq) => defmt::info!("calibration: id {} stored as record {}", table.cal_id, seq),
-            Err(e) => defmt::error!("calibration: store failed: {}", e),
+            Ok(seq) => {
+                app.count(Counter::CalStores);
+                info!(
+                    "calibration: id {:?} stored as record {:?}",
+                    table.cal_id, seq
+                );
+            }
+            Err(e) => {
+                app.count(Counter::CalStoreErrors);
+                error!("calibration: store failed: {:?}", e);
+            }
         }
     }
 }
 
 /// Feeds the watchdog only while every task makes progress, and blinks the LED when it does.
-pub async fn watchdog_loop<L: OutputPin>(
+pub async fn watchdog_loop<B, L: OutputPin>(
+    app: &App<B>,
     period: Duration,
     mut feed: impl FnMut(),
     led: &mut L,
@@ -304,7 +468,7 @@ pub async fn watchdog_loop<L: OutputPin>(
     loop {
         ticker.next().await;
         let mut all = true;
-        for (p, l) in PROGRESS.iter().zip(last.iter_mut()) {
+        for (p, l) in app.progress.iter().zip(last.iter_mut()) {
             let now = p.load(Ordering::Relaxed);
             all &= now != *l;
             *l = now;
@@ -318,29 +482,44 @@ pub async fn watchdog_loop<L: OutputPin>(
                     .into(),
             );
         } else {
-            defmt::warn!("watchdog: a task made no progress, not feeding");
+            warn!("watchdog: a task made no progress, not feeding");
         }
     }
 }
 
-/// Logs link health every `period`, with a quick-look white-noise level of the fused gyro x for a human reading the
-/// log. The root is micromath's (approximate, ≈ ±6 %): marked "≈", never sent as telemetry — the ground gets exact
-/// variances and takes roots itself.
-pub async fn stats_loop(pipeline: &SharedPipeline, period: Duration) -> ! {
-    use micromath::F32Ext;
-    let mut ticker = Ticker::every(period);
+/// Housekeeping: while the FPGA link delivers no frame, a Health report every [`SILENT_HEALTH_PERIOD`] (with
+/// frames, the pipeline sends Health every `health_every` outputs), so that the ground sees a silent FPGA. Every
+/// `log_every` periods it also logs link counters and a quick-look white-noise level of group 0's gyro x for a
+/// human reading the log: micromath's root (≈ ±6 %), marked "≈", never sent — the ground gets exact variances.
+pub async fn housekeeping_loop<B>(app: &App<B>, log_every: u32) -> !
+where
+    B: core::borrow::BorrowMut<AllanBank>,
+{
+    let mut ticker = Ticker::every(SILENT_HEALTH_PERIOD);
+    let mut last_frames = None;
+    let mut n = 0u32;
     loop {
         ticker.next().await;
-        let p = pipeline.lock().await;
+        let mut p = app.pipeline.lock().await;
         let link = *p.link_counters();
+        if last_frames == Some(link.frames) {
+            p.set_uptime_ms(Instant::now().as_millis());
+            let h = p.health();
+            app.route(&mut p, Output::Telemetry(Telemetry::Health(h)));
+            app.count(Counter::SilentHealth);
+        }
+        last_frames = Some(link.frames);
         let var = p.fusion().noise_var(0, shared::calib::GX);
         drop(p);
-        defmt::info!("link: {}", link);
-        if let Some(v) = var {
-            defmt::info!(
-                "group 0 gx white noise per frame ≈ {} °/s",
-                (v as f32).sqrt() * 1e-6
-            );
+        n = n.wrapping_add(1);
+        if log_every != 0 && n.is_multiple_of(log_every) {
+            info!("link: {:?}", link);
+            if let Some(v) = var {
+                info!(
+                    "group 0 gx white noise per frame ≈ {:?} °/s",
+                    micromath::F32Ext::sqrt(v as f32) * 1e-6
+                );
+            }
         }
     }
 }

@@ -31,8 +31,10 @@ use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dma, peripherals};
 use static_cell::ConstStaticCell;
 
-use crate::app::{ClassifyRxError, RxFault};
-use crate::flash::FlashWindow;
+use firmware::flash::FlashWindow;
+use firmware::layout::{CAL_FLASH_BASE, CAL_SECTOR_LEN, CAL_SECTORS, FPGA_RX_RING_LEN};
+
+pub use firmware::layout::{BUS_BAUD, FPGA_BAUD};
 
 bind_interrupts!(pub struct Irqs {
     USART1 => usart::InterruptHandler<peripherals::USART1>;
@@ -41,24 +43,18 @@ bind_interrupts!(pub struct Irqs {
     DMA2_STREAM7 => dma::InterruptHandler<peripherals::DMA2_CH7>;
 });
 
-/// FPGA link baud rate: USART1 on PCLK2 = 84 MHz, 84 MHz / 2 Mbaud = 42, exact with 16× oversampling.
-/// Budget: 240-byte frames at 604.8 /s = 1.452 Mbit/s with start/stop bits = 73 % of the line.
-pub const FPGA_BAUD: u32 = 2_000_000;
-/// CubeSat bus baud rate.
-pub const BUS_BAUD: u32 = 115_200;
+// FPGA_BAUD: USART1 on PCLK2 = 84 MHz, 84 MHz / 2 Mbaud = 42, exact with 16× oversampling.
+// Budget: 240-byte frames at 604.8 /s = 1.452 Mbit/s with start/stop bits = 73 % of the line.
 /// IWDG timeout, nominal (LSI assumed 32 kHz; at the fastest LSI, 47 kHz, it is 5.4 s). It must exceed one
 /// 128 KiB sector erase (up to ~4 s on the F405 at the parallelism embassy uses) plus two watchdog periods.
 pub const WATCHDOG_TIMEOUT_US: u32 = 8_000_000;
 
-/// DMA ring for the FPGA stream: 8 KiB = 41 ms at 2 Mbaud = 34 frames of slack.
-const FPGA_RX_RING_LEN: usize = 8 * 1024;
 const BUS_RX_BUF_LEN: usize = 512;
 const BUS_TX_BUF_LEN: usize = 1024;
 
 /// Calibration window inside embassy's `Bank1Region3` (0x0802_0000 …, 7 sectors of 128 KiB).
 const REGION3_BASE: u32 = 0x0802_0000;
-const CALIB_BASE: u32 = 0x080C_0000; // sector 10
-const CALIB_LEN: u32 = 2 * 128 * 1024; // sectors 10 and 11
+const CALIB_LEN: u32 = (CAL_SECTORS * CAL_SECTOR_LEN) as u32; // sectors 10 and 11
 
 /// FPGA frames: `embedded_io_async::Read` over the DMA ring.
 pub type FpgaRx = RingBufferedUartRx<'static>;
@@ -151,7 +147,7 @@ pub fn init() -> Board {
     let region3 = Flash::new_blocking(p.FLASH)
         .into_blocking_regions()
         .bank1_region3;
-    let calib = FlashWindow::new(region3, CALIB_BASE - REGION3_BASE, CALIB_LEN);
+    let calib = FlashWindow::new(region3, CAL_FLASH_BASE - REGION3_BASE, CALIB_LEN);
 
     let led = Output::new(p.PC13, Level::High, Speed::Low);
 
@@ -164,16 +160,6 @@ pub fn init() -> Board {
         watchdog,
         calib,
         led,
-    }
-}
-
-impl ClassifyRxError for usart::Error {
-    fn classify(&self) -> RxFault {
-        match self {
-            usart::Error::Overrun => RxFault::Overrun,
-            usart::Error::Framing | usart::Error::Noise | usart::Error::Parity => RxFault::Line,
-            _ => RxFault::Other,
-        }
     }
 }
 

@@ -5,7 +5,8 @@
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 
 /// Errors of the window: either out of the window / misaligned, or the inner flash error.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, defmt::Format)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum WindowError<E> {
     /// Access outside `0..len` of the window.
     OutOfBounds,

@@ -1,18 +1,16 @@
 //! IMU cluster firmware for the STM32F405RG: a thin shell over `shared::Pipeline`.
 //!
 //! `main` configures the board, loads the calibration and spawns the tasks; each task is a few lines that hand its
-//! peripherals to a board-independent loop in [`app`] (embassy tasks cannot be generic). Pins and peripherals live
-//! in [`board`] only.
+//! peripherals to a board-independent loop in `firmware::app` (embassy tasks cannot be generic; the same loops run
+//! on the PC in the SITL and the scenario tests). Pins and peripherals live in [`board`] only.
 #![no_std]
 #![no_main]
 
-mod app;
 mod board;
-mod flash;
 
 use embassy_executor::Spawner;
-use embassy_sync::mutex::Mutex;
 use embassy_time::Duration;
+use firmware::app::{self, App};
 use shared::bus::BusConfig;
 use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
 use shared::storage::CalStore;
@@ -22,7 +20,8 @@ use defmt_rtt as _;
 #[cfg(debug_assertions)]
 use panic_probe as _;
 
-use app::SharedPipeline;
+/// The tasks' shared state, as the MCU holds it.
+type FwApp = App<&'static mut AllanBank>;
 
 /// Release builds reset on a panic (after logging it); the core never panics on input, so this is a last resort.
 #[cfg(not(debug_assertions))]
@@ -34,12 +33,12 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 
 /// How often the watchdog task checks progress.
 const WATCHDOG_PERIOD: Duration = Duration::from_millis(250);
-/// How often link statistics are logged.
-const STATS_PERIOD: Duration = Duration::from_secs(10);
+/// Housekeeping periods (1 s each) between log lines of link statistics.
+const LOG_EVERY: u32 = 10;
 
 /// The Allan accumulators of all 102 channels (59.6 KiB, zero-initialised: `.bss`).
 static ALLAN: ConstStaticCell<AllanBank> = ConstStaticCell::new(AllanBank::new());
-static PIPELINE: StaticCell<SharedPipeline> = StaticCell::new();
+static APP: StaticCell<FwApp> = StaticCell::new();
 static STORE: StaticCell<CalStore<board::CalibFlash>> = StaticCell::new();
 
 #[embassy_executor::main]
@@ -52,52 +51,49 @@ async fn main(spawner: Spawner) {
         CalStore::new(b.calib).map_err(|_| "calibration flash geometry")
     ));
     app::load_calibration(store, &mut pipeline);
-    let pipeline: &'static SharedPipeline = PIPELINE.init(Mutex::new(pipeline));
+    let app: &'static FwApp = APP.init(App::new(pipeline, BusConfig::DEFAULT));
 
-    spawner.spawn(defmt::unwrap!(watchdog(b.watchdog, b.led)));
-    spawner.spawn(defmt::unwrap!(fpga_link(b.fpga_rx, pipeline)));
-    spawner.spawn(defmt::unwrap!(fpga_ctrl(b.fpga_tx)));
-    spawner.spawn(defmt::unwrap!(bus_rx(b.bus_rx, pipeline)));
-    spawner.spawn(defmt::unwrap!(bus_tx(b.bus_tx, pipeline)));
-    spawner.spawn(defmt::unwrap!(storage(store, pipeline)));
-    spawner.spawn(defmt::unwrap!(stats(pipeline)));
+    spawner.spawn(defmt::unwrap!(watchdog(app, b.watchdog, b.led)));
+    spawner.spawn(defmt::unwrap!(fpga_link(app, b.fpga_rx)));
+    spawner.spawn(defmt::unwrap!(fpga_ctrl(app, b.fpga_tx)));
+    spawner.spawn(defmt::unwrap!(bus_rx(app, b.bus_rx)));
+    spawner.spawn(defmt::unwrap!(bus_tx(app, b.bus_tx)));
+    spawner.spawn(defmt::unwrap!(storage(app, store)));
+    spawner.spawn(defmt::unwrap!(housekeeping(app)));
 }
 
 #[embassy_executor::task]
-async fn fpga_link(mut rx: board::FpgaRx, pipeline: &'static SharedPipeline) {
-    app::link_loop(&mut rx, pipeline).await
+async fn fpga_link(app: &'static FwApp, mut rx: board::FpgaRx) {
+    app::link_loop(app, &mut rx).await
 }
 
 #[embassy_executor::task]
-async fn fpga_ctrl(mut tx: board::FpgaTx) {
-    app::fpga_ctrl_loop(&mut tx).await
+async fn fpga_ctrl(app: &'static FwApp, mut tx: board::FpgaTx) {
+    app::fpga_ctrl_loop(app, &mut tx).await
 }
 
 #[embassy_executor::task]
-async fn bus_rx(mut rx: board::BusRx, pipeline: &'static SharedPipeline) {
-    app::bus_rx_loop(&mut rx, pipeline, BusConfig::DEFAULT).await
+async fn bus_rx(app: &'static FwApp, mut rx: board::BusRx) {
+    app::bus_rx_loop(app, &mut rx).await
 }
 
 #[embassy_executor::task]
-async fn bus_tx(mut tx: board::BusTx, pipeline: &'static SharedPipeline) {
-    app::bus_tx_loop(&mut tx, pipeline, BusConfig::DEFAULT).await
+async fn bus_tx(app: &'static FwApp, mut tx: board::BusTx) {
+    app::bus_tx_loop(app, &mut tx).await
 }
 
 #[embassy_executor::task]
-async fn storage(
-    store: &'static mut CalStore<board::CalibFlash>,
-    pipeline: &'static SharedPipeline,
-) {
-    app::storage_loop(store, pipeline).await
+async fn storage(app: &'static FwApp, store: &'static mut CalStore<board::CalibFlash>) {
+    app::storage_loop(app, store).await
 }
 
 #[embassy_executor::task]
-async fn watchdog(mut wdt: board::Watchdog, mut led: board::Led) {
+async fn watchdog(app: &'static FwApp, mut wdt: board::Watchdog, mut led: board::Led) {
     wdt.unleash();
-    app::watchdog_loop(WATCHDOG_PERIOD, || wdt.pet(), &mut led).await
+    app::watchdog_loop(app, WATCHDOG_PERIOD, || wdt.pet(), &mut led).await
 }
 
 #[embassy_executor::task]
-async fn stats(pipeline: &'static SharedPipeline) {
-    app::stats_loop(pipeline, STATS_PERIOD).await
+async fn housekeeping(app: &'static FwApp) {
+    app::housekeeping_loop(app, LOG_EVERY).await
 }

@@ -19,10 +19,13 @@ use shared::wire::{FpgaControl, LinkCounters};
 /// The host's pipeline.
 pub type HostPipeline = Pipeline<Box<AllanBank>>;
 
-/// A host pipeline with `config` and `cal`.
+/// A host pipeline with `config` and `cal`: the factory table as the MCU boots with it (source `Factory`), any
+/// other as an upload (`Uploaded`), so that Health says what the MCU's would.
 pub fn host_pipeline(config: PipelineConfig, cal: CalibrationTable<GROUPS>) -> HostPipeline {
     let mut p = Pipeline::new(config, Box::new(AllanBank::new()));
-    p.load_calibration(cal, shared::telemetry::CalSource::Uploaded);
+    if cal != CalibrationTable::factory() {
+        p.load_calibration(cal, shared::telemetry::CalSource::Uploaded);
+    }
     p
 }
 

@@ -28,7 +28,7 @@ use crate::telemetry::{
     Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, FusedReport,
     HealthReport, Reject, Telemetry, decode, peek_tag,
 };
-use crate::wire::frame::GROUPS;
+use crate::wire::frame::{FRAME_LEN, GROUPS};
 use crate::wire::{Decoded, FpgaControl, FrameClock, FrameDecoder, LinkCounters};
 use core::borrow::BorrowMut;
 use core::num::{NonZeroU64, NonZeroU128};
@@ -57,6 +57,9 @@ pub struct PipelineConfig {
     pub frames_per_output: u16,
     /// Outputs between periodic health reports (0 = only on request).
     pub health_every: u16,
+    /// Line rate of the FPGA link, bit/s (8N1: 10 bits per byte). `SetDecimation` is refused when the frame
+    /// stream it asks for would not fit: (base rate / (N + 1)) · `FRAME_LEN` · 10 > this.
+    pub link_bit_rate: u32,
     /// Fusion parameters.
     pub fusion: FusionConfig,
 }
@@ -67,8 +70,21 @@ impl PipelineConfig {
         fpga_base_rate_mhz: 9_676_800,
         frames_per_output: 32,
         health_every: 19,
+        link_bit_rate: 2_000_000,
         fusion: FusionConfig::DEFAULT,
     };
+
+    /// Whether the link carries the frame stream of decimation `n` (see [`Self::link_bit_rate`]). At our defaults
+    /// the smallest such `n` is 11 (806.4 frames/s, 97 % of the 2 Mbaud line).
+    pub fn link_carries(&self, n: u16) -> bool {
+        // In u128 neither side can wrap: need < 2⁶⁴ · 2¹² and have ≤ 2¹⁶ · 2³² · 2¹⁰.
+        let need =
+            u128::from(self.fpga_base_rate_mhz).wrapping_mul((FRAME_LEN as u128).wrapping_mul(10));
+        let have = (u128::from(n).wrapping_add(1))
+            .wrapping_mul(u128::from(self.link_bit_rate))
+            .wrapping_mul(1000);
+        need <= have
+    }
 }
 
 /// Something the platform must do. (Dumps come from [`Pipeline::poll_dump`].)
@@ -308,6 +324,12 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         self.decoder.note_overruns(n);
     }
 
+    /// Adds telemetry messages the platform could not send (its bus queue was full); reported in health as
+    /// `telemetry_dropped`, with the pipeline's own outbox overflows.
+    pub fn note_telemetry_dropped(&mut self, n: u32) {
+        self.telemetry_dropped = self.telemetry_dropped.wrapping_add(n);
+    }
+
     /// Sets the uptime reported in health (the platform's clock).
     pub fn set_uptime_ms(&mut self, ms: u64) {
         self.uptime_ms = ms;
@@ -516,7 +538,12 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     fn execute(&mut self, cmd: Command) -> Result<(), Reject> {
         match cmd {
             Command::Ping => {}
-            Command::SetDecimation(n) => self.push(Output::Fpga(FpgaControl::SetDecimation(n))),
+            Command::SetDecimation(n) => {
+                if !self.config.link_carries(n) {
+                    return Err(Reject::BadArgument);
+                }
+                self.push(Output::Fpga(FpgaControl::SetDecimation(n)))
+            }
             Command::SetOutputRate(l) => {
                 if !(1..=MAX_FRAMES_PER_OUTPUT).contains(&l) {
                     return Err(Reject::BadArgument);

@@ -284,6 +284,17 @@ fn commands_are_acknowledged_or_rejected_with_a_reason() {
     let out = command(&mut p, 2, Command::SetDecimation(511));
     assert_eq!(ack(&out).result, Ok(()));
     assert_eq!(out[1], Output::Fpga(FpgaControl::SetDecimation(511)));
+    // The 2 Mbaud link carries 240-byte frames (2400 bits) up to 833 frames/s: N = 11 (806.4 /s) fits, N = 10
+    // (879.7 /s) does not, and nothing goes to the FPGA.
+    let out = command(&mut p, 2, Command::SetDecimation(11));
+    assert_eq!(ack(&out).result, Ok(()));
+    let out = command(&mut p, 2, Command::SetDecimation(10));
+    assert_eq!(ack(&out).result, Err(Reject::BadArgument));
+    assert_eq!(out.len(), 1);
+    assert_eq!(
+        ack(&command(&mut p, 2, Command::SetDecimation(0))).result,
+        Err(Reject::BadArgument)
+    );
     assert_eq!(
         ack(&command(&mut p, 3, Command::SetOutputRate(0))).result,
         Err(Reject::BadArgument)
@@ -321,7 +332,7 @@ fn commands_are_acknowledged_or_rejected_with_a_reason() {
         })))
     );
     let h = p.health();
-    assert_eq!(h.commands, [2, 5]);
+    assert_eq!(h.commands, [3, 7]);
     let out = command(&mut p, 7, Command::HealthRequest { detail: true });
     assert_eq!(out.len(), 2 + GROUPS);
     assert!(matches!(

@@ -1,5 +1,6 @@
 //! A NOR-flash test double for the A/B store (host only: feature `mock-flash`, and the crate's own tests): 4-byte
-//! words, 1 KiB erase blocks, and a power cut after `budget` operations (one operation = one block erase or one
+//! words, erase blocks of `E` bytes (1 KiB by default; the firmware's host-run tasks use the STM32F405's 128 KiB
+//! sectors), and a power cut after `budget` operations (one operation = one block erase or one
 //! word write). An interrupted erase leaves its block half erased, half garbage; a write to a word that is not erased
 //! is refused (`NotErased`), which catches a store that writes before it erases. Shared by `storage`'s tests and the
 //! `storage` fuzz target, so both exercise the same flash model.
@@ -19,7 +20,7 @@ use embedded_storage::nor_flash::{
 use std::vec;
 use std::vec::Vec;
 
-/// Erase block, bytes.
+/// Default erase block, bytes.
 pub const ERASE: usize = 1024;
 
 /// Why a mock flash operation failed.
@@ -42,9 +43,10 @@ impl NorFlashError for MockError {
     }
 }
 
-/// The flash: its bytes, the operation budget before the power cut (`None`: never) and the operations done.
+/// The flash: its bytes, the operation budget before the power cut (`None`: never) and the operations done; erase
+/// blocks of `E` bytes.
 #[derive(Clone, Debug)]
-pub struct MockFlash {
+pub struct MockFlash<const E: usize = ERASE> {
     /// Contents.
     pub mem: Vec<u8>,
     /// Operations allowed before the power cut.
@@ -53,11 +55,11 @@ pub struct MockFlash {
     pub ops: usize,
 }
 
-impl MockFlash {
+impl<const E: usize> MockFlash<E> {
     /// An erased flash of `blocks` erase blocks, without a power cut.
     pub fn erased(blocks: usize) -> Self {
         Self {
-            mem: vec![0xFF; blocks * ERASE],
+            mem: vec![0xFF; blocks * E],
             budget: None,
             ops: 0,
         }
@@ -72,11 +74,11 @@ impl MockFlash {
     }
 }
 
-impl ErrorType for MockFlash {
+impl<const E: usize> ErrorType for MockFlash<E> {
     type Error = MockError;
 }
 
-impl ReadNorFlash for MockFlash {
+impl<const E: usize> ReadNorFlash for MockFlash<E> {
     const READ_SIZE: usize = 1;
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), MockError> {
         let src = self
@@ -91,19 +93,19 @@ impl ReadNorFlash for MockFlash {
     }
 }
 
-impl NorFlash for MockFlash {
+impl<const E: usize> NorFlash for MockFlash<E> {
     const WRITE_SIZE: usize = 4;
-    const ERASE_SIZE: usize = ERASE;
+    const ERASE_SIZE: usize = E;
     fn erase(&mut self, from: u32, to: u32) -> Result<(), MockError> {
-        for block in (from as usize..to as usize).step_by(ERASE) {
+        for block in (from as usize..to as usize).step_by(E) {
             let cut = self.step();
             let b = self
                 .mem
-                .get_mut(block..block + ERASE)
+                .get_mut(block..block + E)
                 .ok_or(MockError::OutOfBounds)?;
             if cut.is_err() {
-                b[..ERASE / 2].fill(0xFF);
-                b[ERASE / 2..]
+                b[..E / 2].fill(0xFF);
+                b[E / 2..]
                     .iter_mut()
                     .enumerate()
                     .for_each(|(i, x)| *x = (i * 7 + 3) as u8);

@@ -1,0 +1,40 @@
+//! The firmware's task code, independent of the board, as a library: the flight binary (`src/main.rs`, feature
+//! `stm32`) spawns these loops on the STM32F405, and the host build (feature `sim`, the default) runs the very same
+//! loops on the PC with the hardware replaced at the edges ([`sim`]): the SITL binary and the scenario tests.
+//!
+//! - [`app`]: the tasks' loops and the state they share ([`app::App`]).
+//! - [`flash`]: a `NorFlash` window onto the calibration sectors.
+//! - [`layout`]: the STM32F405 facts the loops and the models both need (flash sectors, line rates).
+//! - [`sim`] (host): the clock and executor (virtual or real time), UART lines, the flash model.
+#![no_std]
+
+#[cfg(all(feature = "sim", feature = "stm32"))]
+compile_error!(
+    "features `sim` (host) and `stm32` (flight) exclude each other: `cargo fw` builds the flight binary"
+);
+
+#[cfg(feature = "sim")]
+extern crate std;
+
+#[macro_use]
+mod log;
+
+pub mod app;
+pub mod flash;
+pub mod layout;
+#[cfg(feature = "sim")]
+pub mod sim;
+
+/// The STM32 USART's receive errors as the link loop counts them (here, not in `board.rs`: the orphan rule wants
+/// the trait's crate).
+#[cfg(feature = "stm32")]
+impl app::ClassifyRxError for embassy_stm32::usart::Error {
+    fn classify(&self) -> app::RxFault {
+        use embassy_stm32::usart::Error;
+        match self {
+            Error::Overrun => app::RxFault::Overrun,
+            Error::Framing | Error::Noise | Error::Parity => app::RxFault::Line,
+            _ => app::RxFault::Other,
+        }
+    }
+}

@@ -1,0 +1,101 @@
+//! The simulated board: the lines and the watchdog around one [`App`], and [`tasks`], every firmware loop joined
+//! into one future — what `main.rs` spawns on the MCU, with the same arguments. The SITL binary and the scenario
+//! tests both run the firmware through this.
+
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use embassy_futures::join::{join, join4};
+use embassy_time::Duration;
+use embedded_storage::nor_flash::NorFlash;
+use shared::pipeline::AllanBank;
+use shared::storage::CalStore;
+
+use super::NoPin;
+use super::line::Line;
+use crate::app::{self, App};
+use crate::layout::{BUS_BAUD, FPGA_RX_RING_LEN};
+use crate::log::Loggable;
+
+/// How often the watchdog loop checks progress (as `main.rs`).
+pub const WATCHDOG_PERIOD: Duration = Duration::from_millis(250);
+/// Bus receive buffer, bytes (as `board.rs`).
+pub const BUS_RX_BUF_LEN: usize = 512;
+
+/// The edges of the board.
+pub struct Board {
+    /// FPGA → MCU: the DMA ring of USART1.
+    pub fpga_rx: Line,
+    /// MCU → FPGA: control messages.
+    pub fpga_tx: Line,
+    /// Ground → MCU: the bus receiver's buffer.
+    pub bus_rx: Line,
+    /// MCU → ground: what the bus transmitter has put on the wire.
+    pub bus_tx: Line,
+    /// Bus transmit rate (`None`: as fast as the task writes).
+    pub bus_baud: Option<u32>,
+    /// Times the watchdog was fed.
+    pub watchdog_feeds: AtomicU32,
+}
+
+impl Board {
+    /// The flight board's buffers, the bus at 115200 baud.
+    pub fn new() -> Self {
+        Self::with_bus_baud(Some(BUS_BAUD))
+    }
+
+    /// The flight board's buffers, the bus transmitter at `bus_baud`.
+    pub fn with_bus_baud(bus_baud: Option<u32>) -> Self {
+        Self {
+            fpga_rx: Line::new(FPGA_RX_RING_LEN),
+            fpga_tx: Line::new(1 << 16),
+            bus_rx: Line::new(BUS_RX_BUF_LEN),
+            bus_tx: Line::new(1 << 20),
+            bus_baud,
+            watchdog_feeds: AtomicU32::new(0),
+        }
+    }
+
+    /// Times the watchdog was fed so far.
+    pub fn feeds(&self) -> u32 {
+        self.watchdog_feeds.load(Ordering::Relaxed)
+    }
+}
+
+impl Default for Board {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Every firmware loop over `board` and `store`, joined (never returns: drop it to stop the firmware).
+pub async fn tasks<B, F>(app: &App<B>, board: &Board, store: &mut CalStore<F>)
+where
+    B: core::borrow::BorrowMut<AllanBank>,
+    F: NorFlash,
+    F::Error: Loggable,
+{
+    let mut fpga_rx = board.fpga_rx.rx();
+    let mut fpga_tx = board.fpga_tx.writer(None);
+    let mut bus_rx = board.bus_rx.rx();
+    let mut bus_tx = board.bus_tx.writer(board.bus_baud);
+    let mut led = NoPin;
+    let feed = || {
+        board.watchdog_feeds.fetch_add(1, Ordering::Relaxed);
+    };
+    let _ = join(
+        join4(
+            app::link_loop(app, &mut fpga_rx),
+            app::bus_rx_loop(app, &mut bus_rx),
+            app::bus_tx_loop(app, &mut bus_tx),
+            app::fpga_ctrl_loop(app, &mut fpga_tx),
+        ),
+        join(
+            join(
+                app::storage_loop(app, store),
+                app::watchdog_loop(app, WATCHDOG_PERIOD, feed, &mut led),
+            ),
+            app::housekeeping_loop(app, 10),
+        ),
+    )
+    .await;
+}

@@ -1,0 +1,437 @@
+//! Scenario tests of the firmware's own tasks (`firmware::app`), run on the host with the hardware modelled at the
+//! edges (`firmware::sim`) in virtual time: the same loops the STM32 spawns, fed by a frame log and a ground station.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
+#![allow(clippy::arithmetic_side_effects)]
+
+mod common;
+
+use common::{Ground, Sat, frame_period, frames, table, upload_commands};
+use embassy_time::{Duration, Instant, Timer};
+use embedded_io_async::Write as _;
+use firmware::app::Task;
+use firmware::sim::clock::settle;
+use firmware::sim::flash as simflash;
+use firmware::sim::line::SimRxError;
+use host_test::replay::{ReplayOptions, replay};
+use shared::bus::BusConfig;
+use shared::calib::CalibrationTable;
+use shared::pipeline::{ALLAN_CHANNELS, PipelineConfig};
+use shared::telemetry::{Ack, CalSource, Command, Reject, Telemetry, peek_tag};
+use shared::wire::FpgaControl;
+use shared::wire::frame::{FRAME_LEN, GROUPS};
+
+const MINUTE: Duration = Duration::from_secs(60);
+
+fn fused(t: &[Telemetry]) -> usize {
+    t.iter()
+        .filter(|t| matches!(t, Telemetry::Fused(_)))
+        .count()
+}
+
+fn healths(t: &[Telemetry]) -> Vec<shared::telemetry::HealthReport> {
+    t.iter()
+        .filter_map(|t| match t {
+            Telemetry::Health(h) => Some(*h),
+            _ => None,
+        })
+        .collect()
+}
+
+/// A frame log through the tasks, then the ground's final dump (all Allan channels, detailed health), gives the
+/// same bus bytes as `ground replay` of the log (`host_test::replay`, which drives `Pipeline` directly).
+#[test]
+fn replay_through_the_tasks_is_byte_identical_to_ground_replay() {
+    let log = frames(5000);
+    let expected = replay(
+        &log,
+        &ReplayOptions {
+            config: PipelineConfig::DEFAULT,
+            cal: CalibrationTable::factory(),
+            bus: BusConfig::DEFAULT,
+            final_dump: true,
+            check: false,
+        },
+        |_| {},
+    );
+    let allan = expected
+        .messages
+        .iter()
+        .filter(|m| matches!(m, Telemetry::Allan(_)))
+        .count();
+    assert!(
+        allan > 1000 && fused(&expected.messages) > 100,
+        "a stream and a dump worth comparing"
+    );
+
+    // The bus as fast as the tasks write: `ground replay` has no bus rate; the log as fast as the link takes it.
+    let mut sat = Sat::boot(simflash::erased(), None);
+    let ground = Ground::new();
+    let bytes = sat.run(MINUTE, async |_, board| {
+        board.fpga_rx.writer(None).write_all(&log).await.unwrap();
+        settle().await;
+        ground.send(
+            board,
+            1,
+            Command::AllanRequest {
+                first: 0,
+                count: ALLAN_CHANNELS as u8,
+            },
+        );
+        settle().await;
+        ground.send(board, 2, Command::HealthRequest { detail: true });
+        settle().await;
+        // Nothing waited for time: every Health says uptime 0, as the replay's.
+        assert_eq!(Instant::now().as_ticks(), 0);
+        board.bus_tx.take_all()
+    });
+    let h = sat.app.pipeline.try_lock().unwrap().health();
+    assert_eq!(h.link.frames, 5000);
+    assert_eq!(h.telemetry_dropped, 0);
+    assert_eq!(bytes.len(), expected.telemetry.len());
+    assert!(
+        bytes == expected.telemetry,
+        "bus bytes differ from ground replay's"
+    );
+}
+
+/// At 115200 baud one report per frame (604.8 /s, ≈ 37 kB/s) cannot all be sent: the link task never waits for
+/// the bus (every frame processed, no overrun of its ring), and every message is either sent or counted as dropped.
+#[test]
+fn slow_bus_drops_and_counts_telemetry_but_never_holds_up_the_link() {
+    let frames_n = 1210; // 2 s
+    let log = frames(frames_n);
+    let mut sat = Sat::fresh();
+    let mut ground = Ground::new();
+    let sent_bytes = sat.run(MINUTE, async |app, board| {
+        ground.send(board, 1, Command::SetOutputRate(1));
+        settle().await;
+        let t0 = Instant::now();
+        for (k, f) in log.chunks(FRAME_LEN).enumerate() {
+            Timer::at(t0 + frame_period() * k as u32).await;
+            // The FPGA never waits: bytes the ring cannot take are lost and counted as overruns.
+            board.fpga_rx.push(f);
+        }
+        let link_ticks = app.progress(Task::Link);
+        Timer::after(Duration::from_millis(500)).await;
+        assert!(app.progress(Task::Link) > link_ticks, "link task alive");
+        ground.receive(board);
+        ground.bytes.len()
+    });
+    let h = sat.app.pipeline.try_lock().unwrap().health();
+    let c = sat.app.counters();
+    assert_eq!(h.link.frames, frames_n as u32);
+    assert_eq!(h.link.overruns, 0);
+    assert_eq!(h.link.crc_errors, 0);
+    assert_eq!(
+        ground.acks(),
+        vec![Ack {
+            tag: 1,
+            result: Ok(())
+        }]
+    );
+    let produced = frames_n + frames_n / 19 + c.silent_health as usize;
+    let got = fused(&ground.telemetry) + healths(&ground.telemetry).len();
+    eprintln!(
+        "slow bus: {got} messages sent, {} dropped, {sent_bytes} bytes on the bus",
+        h.telemetry_dropped
+    );
+    assert!(h.telemetry_dropped > 0);
+    assert_eq!(
+        got + h.telemetry_dropped as usize,
+        produced,
+        "sent + dropped = produced"
+    );
+    // The bus ran at its line rate while the frames came (2 s at 11 520 bytes/s), and never faster.
+    let busy = frames_n as f64 / 604.8 * 11_520.0;
+    assert!(
+        sent_bytes as f64 > 0.97 * busy && (sent_bytes as f64) < busy + 0.5 * 11_520.0,
+        "{sent_bytes}"
+    );
+    assert_eq!(ground.bad, 0);
+}
+
+/// Every command gets exactly one ack, with its tag, while frames stream: accepted, refused with a typed reason
+/// (a decimation the 2 Mbaud link cannot carry, output rates out of range), malformed; the FPGA gets only accepted
+/// control messages.
+#[test]
+fn every_command_is_answered_exactly_once() {
+    let log = frames(1200);
+    let mut sat = Sat::fresh();
+    let mut ground = Ground::new();
+    let commands: Vec<(u16, Command, Result<(), Reject>)> = vec![
+        (1, Command::Ping, Ok(())),
+        (2, Command::SetDecimation(31), Ok(())),
+        (3, Command::SetDecimation(10), Err(Reject::BadArgument)),
+        (4, Command::SetOutputRate(0), Err(Reject::BadArgument)),
+        (5, Command::SetOutputRate(4097), Err(Reject::BadArgument)),
+        (6, Command::SetOutputRate(64), Ok(())),
+        (7, Command::HealthRequest { detail: false }, Ok(())),
+        (8, Command::CalCommit, Err(Reject::CalNotStarted)),
+        (
+            9,
+            Command::AllanRequest {
+                first: 200,
+                count: 1,
+            },
+            Err(Reject::BadArgument),
+        ),
+    ];
+    let malformed = ground.packet(
+        BusConfig::DEFAULT.command_port,
+        &[1, 0x34, 0x12, 0xFF, 0xFF],
+    );
+    let fpga = sat.run(MINUTE, async |_, board| {
+        let t0 = Instant::now();
+        let mut next = commands.iter();
+        for (k, f) in log.chunks(FRAME_LEN).enumerate() {
+            Timer::at(t0 + frame_period() * k as u32).await;
+            board.fpga_rx.push(f);
+            if k % 100 == 50 {
+                match next.next() {
+                    Some((tag, cmd, _)) => ground.send(board, *tag, cmd.clone()),
+                    None if k == 950 => {
+                        board.bus_rx.push(&malformed);
+                    }
+                    None => {}
+                }
+            }
+        }
+        Timer::after(Duration::from_millis(300)).await;
+        ground.receive(board);
+        board.fpga_tx.take_all()
+    });
+    let acks = ground.acks();
+    assert_eq!(acks.len(), commands.len() + 1, "{acks:?}");
+    for (tag, _, result) in &commands {
+        let mine: Vec<_> = acks.iter().filter(|a| a.tag == *tag).collect();
+        assert_eq!(mine.len(), 1, "tag {tag}: {acks:?}");
+        assert_eq!(mine[0].result, *result, "tag {tag}");
+    }
+    let m = acks.last().unwrap();
+    assert_eq!(
+        (m.tag, m.result),
+        (
+            peek_tag(&[1, 0x34, 0x12, 0xFF, 0xFF]),
+            Err(Reject::Malformed)
+        )
+    );
+    // Only the accepted decimation went to the FPGA.
+    assert_eq!(fpga, FpgaControl::SetDecimation(31).to_bytes().to_vec());
+    // The requested health came (tag 7), and the output rate in force is 64.
+    assert!(
+        healths(&ground.telemetry)
+            .iter()
+            .any(|h| h.frames_per_output == 64)
+    );
+    assert_eq!(
+        sat.app.pipeline.try_lock().unwrap().health().commands,
+        [4, 6]
+    );
+}
+
+/// An uploaded calibration is committed through the tasks, stored, and in force after a restart on the same flash.
+#[test]
+fn uploaded_calibration_survives_a_restart() {
+    let mut sat = Sat::fresh();
+    assert_eq!(
+        sat.app.pipeline.try_lock().unwrap().calibration_source(),
+        CalSource::Factory
+    );
+    let new = table(77);
+    let mut ground = Ground::new();
+    sat.run(MINUTE, async |app, board| {
+        for (tag, cmd) in upload_commands(&new, 40, 5) {
+            ground.transact(board, tag, cmd).await;
+        }
+        while app.counters().cal_stores == 0 {
+            Timer::after(Duration::from_millis(10)).await;
+        }
+    });
+    assert!(
+        ground.acks().iter().all(|a| a.result == Ok(())),
+        "{:?}",
+        ground.acks()
+    );
+    assert_eq!(sat.app.counters().cal_store_errors, 0);
+
+    let sat = Sat::boot(sat.into_flash(), None);
+    let p = sat.app.pipeline.try_lock().unwrap();
+    assert_eq!(*p.calibration(), new);
+    assert_eq!(p.calibration_source(), CalSource::Stored);
+}
+
+/// A power cut at every flash operation of a commit made through the tasks: the next boot has the old table or the
+/// new one, never the factory default.
+#[test]
+fn power_cut_at_every_flash_step_of_a_commit_keeps_old_or_new() {
+    let (old, new) = (table(1), table(2));
+    let upload = |sat: &mut Sat, t: &CalibrationTable<GROUPS>| {
+        let mut ground = Ground::new();
+        let cmds = upload_commands(t, 48, 9);
+        sat.run(MINUTE, async |app, board| {
+            for (tag, cmd) in cmds {
+                assert_eq!(ground.transact(board, tag, cmd).await.result, Ok(()));
+            }
+            while app.counters().cal_stores + app.counters().cal_store_errors == 0 {
+                Timer::after(Duration::from_millis(10)).await;
+            }
+        });
+    };
+    let mut sat = Sat::fresh();
+    upload(&mut sat, &old);
+    let base = sat.into_flash();
+    let start = base.ops;
+
+    // One complete commit, to learn how many operations it takes.
+    let mut sat = Sat::boot(base.clone(), None);
+    upload(&mut sat, &new);
+    let steps = sat.into_flash().ops - start;
+    assert!(steps > 2, "an erase and some writes: {steps}");
+
+    let mut outcomes = [0usize; 2];
+    for cut in 0..=steps {
+        let mut flash = base.clone();
+        flash.budget = Some(start + cut);
+        let mut sat = Sat::boot(flash, None);
+        upload(&mut sat, &new);
+        let mut flash = sat.into_flash();
+        flash.budget = None;
+        let sat = Sat::boot(flash, None);
+        let p = sat.app.pipeline.try_lock().unwrap();
+        assert_eq!(
+            p.calibration_source(),
+            CalSource::Stored,
+            "cut after {cut} of {steps}"
+        );
+        let id = p.calibration().cal_id;
+        assert!(id == 1 || id == 2, "cut after {cut}: table {id}");
+        outcomes[(id - 1) as usize] += 1;
+    }
+    // Both outcomes occur: the cut lands before and after the new record is complete.
+    eprintln!(
+        "power cuts: {steps} flash operations per commit; boots with the old table {}, the new {}",
+        outcomes[0], outcomes[1]
+    );
+    assert!(outcomes[0] > 0 && outcomes[1] > 0, "{outcomes:?}");
+}
+
+/// A task that stops making progress stops the watchdog feed (the IWDG then resets the MCU); while all run, it is
+/// fed every period.
+#[test]
+fn a_stalled_task_stops_the_watchdog_feed() {
+    // The bus transmitter stalls when the line stops taking bytes: a 1-byte line nobody drains.
+    let mut sat = Sat::fresh();
+    sat.board.bus_tx = firmware::sim::line::Line::new(1);
+    let ground = Ground::new();
+    let (fed_before, fed_after) = sat.run(MINUTE, async |_, board| {
+        Timer::after(Duration::from_secs(2)).await;
+        let before = board.feeds();
+        // Something to send: the transmitter blocks on the full line from now on.
+        ground.send(board, 1, Command::Ping);
+        Timer::after(Duration::from_secs(3)).await;
+        (before, board.feeds() - before)
+    });
+    // 250 ms period: about 8 feeds in 2 s (the first tick has nothing to compare with).
+    assert!(fed_before >= 6, "{fed_before}");
+    assert!(fed_after <= 1, "fed {fed_after} times after the stall");
+}
+
+/// Injected UART errors on the FPGA link: each is counted by kind, and costs only the frames whose bytes it
+/// destroyed; the frames before and after are all processed.
+#[test]
+fn uart_errors_are_counted_and_cost_only_the_frames_they_touch() {
+    let log = frames(100);
+    let mut sat = Sat::fresh();
+    sat.run(MINUTE, async |_, board| {
+        let t0 = Instant::now();
+        for (k, f) in log.chunks(FRAME_LEN).enumerate() {
+            Timer::at(t0 + frame_period() * k as u32).await;
+            match k {
+                // A framing error destroys 3 bytes in the middle of frame 20.
+                20 => {
+                    board.fpga_rx.push(&f[..100]);
+                    board.fpga_rx.inject(SimRxError::Framing, 3);
+                    board.fpga_rx.push(&f[100..]);
+                }
+                // Noise at a frame boundary, nothing destroyed: costs nothing.
+                40 => {
+                    board.fpga_rx.inject(SimRxError::Noise, 0);
+                    board.fpga_rx.push(f);
+                }
+                // An overrun: the DMA ring lost the second half of frame 60.
+                60 => {
+                    board.fpga_rx.push(&f[..120]);
+                    board.fpga_rx.inject(SimRxError::Overrun, 120);
+                    board.fpga_rx.push(&f[120..]);
+                }
+                _ => {
+                    board.fpga_rx.push(f);
+                }
+            }
+        }
+        Timer::after(Duration::from_millis(200)).await;
+    });
+    let h = sat.app.pipeline.try_lock().unwrap().health();
+    let c = sat.app.counters();
+    assert_eq!(c.link_line_errors, 2);
+    assert_eq!(h.link.overruns, 1);
+    assert_eq!(h.link.frames, 98, "{:?}", h.link);
+    assert_eq!(
+        h.link.frames_dropped, 2,
+        "the sequence counter shows the two lost frames: {:?}",
+        h.link
+    );
+}
+
+/// A silent FPGA (no frames at all) still gives periodic Health on the bus, with the link counters at zero and the
+/// uptime advancing.
+#[test]
+fn a_silent_fpga_still_sends_health() {
+    let mut sat = Sat::fresh();
+    let mut ground = Ground::new();
+    sat.run(MINUTE, async |_, board| {
+        Timer::after(Duration::from_millis(5500)).await;
+        ground.receive(board);
+    });
+    let h = healths(&ground.telemetry);
+    assert!(
+        (4..=5).contains(&h.len()),
+        "{} health reports in 5.5 s",
+        h.len()
+    );
+    assert!(h.iter().all(|h| h.link.frames == 0));
+    assert!(
+        h.windows(2)
+            .all(|w| w[1].uptime_ms >= w[0].uptime_ms + 1000),
+        "{h:?}"
+    );
+    assert_eq!(fused(&ground.telemetry), 0);
+}
+
+/// A CSP ping to our address is answered with the same payload; a ping to another address is ignored.
+#[test]
+fn pings_are_echoed() {
+    let mut sat = Sat::fresh();
+    let mut ground = Ground::new();
+    let ping = ground.packet(shared::bus::csp::PORT_PING, b"abcdefgh");
+    sat.run(MINUTE, async |_, board| {
+        for _ in 0..3 {
+            board.bus_rx.push(&ping);
+            settle().await;
+        }
+        Timer::after(Duration::from_millis(50)).await;
+        ground.receive(board);
+    });
+    assert_eq!(ground.pings.len(), 3);
+    assert!(
+        ground
+            .pings
+            .iter()
+            .all(|(src, p)| *src == 10 && p == b"abcdefgh")
+    );
+}
