@@ -131,7 +131,7 @@ fn main() {
         (20, 0, b"other port".to_vec()),
     ] {
         let h = CspHeader { prio: 2, src: cfg.ground_addr, dst: cfg.addr, dport, sport: 30, flags };
-        let n = CspPacket::emit_kiss(&h, &payload, &mut out).unwrap();
+        let n = CspPacket::emit_kiss(&h, cfg.version, &payload, &mut out).unwrap();
         bus.extend_from_slice(&out[..n]);
     }
     put("bus", "packets", &raw(&bus));

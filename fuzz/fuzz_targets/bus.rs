@@ -18,15 +18,15 @@ mod common;
 use arbitrary::Arbitrary;
 use common::chunks;
 use libfuzzer_sys::fuzz_target;
-use shared::bus::csp::{CspHeader, CspPacket, FLAG_CRC32, PORT_PING};
+use shared::bus::csp::{CspHeader, CspPacket, CspVersion, FLAG_CRC32, PORT_PING};
 use shared::bus::kiss::{self, KissDecoder};
 use shared::bus::{BusConfig, BusCounters, BusEvent, BusNode, MAX_FRAME, MAX_PAYLOAD, MAX_WIRE_FRAME};
 
 #[derive(Arbitrary, Debug, Clone, Copy)]
 struct Header {
     prio: u8,
-    src: u8,
-    dst: u8,
+    src: u16,
+    dst: u16,
     dport: u8,
     sport: u8,
     crc32: bool,
@@ -36,8 +36,8 @@ impl Header {
     fn csp(&self, cfg: &BusConfig, to_node: Option<bool>) -> CspHeader {
         CspHeader {
             prio: self.prio & 3,
-            src: self.src & 31,
-            dst: if to_node.is_some() { cfg.addr } else { self.dst & 31 },
+            src: self.src & cfg.version.max_addr(),
+            dst: if to_node.is_some() { cfg.addr } else { self.dst & cfg.version.max_addr() },
             dport: match to_node {
                 Some(true) => cfg.command_port,
                 Some(false) => PORT_PING,
@@ -59,8 +59,9 @@ enum Piece {
 
 #[derive(Arbitrary, Debug)]
 struct Input {
-    addr: u8,
-    ground: u8,
+    v2: bool,
+    addr: u16,
+    ground: u16,
     tm_port: u8,
     cmd_port: u8,
     pieces: Vec<Piece>,
@@ -72,6 +73,7 @@ impl Input {
     fn raw(bytes: &[u8]) -> Self {
         let c = BusConfig::DEFAULT;
         Self {
+            v2: false,
             addr: c.addr,
             ground: c.ground_addr,
             tm_port: c.telemetry_port,
@@ -115,9 +117,11 @@ fuzz_target!(|data: &[u8]| {
 });
 
 fn check(input: Input) {
+    let version = if input.v2 { CspVersion::V2 } else { CspVersion::V1 };
     let cfg = BusConfig {
-        addr: input.addr & 31,
-        ground_addr: input.ground & 31,
+        version,
+        addr: input.addr & version.max_addr(),
+        ground_addr: input.ground & version.max_addr(),
         telemetry_port: input.tm_port & 63,
         command_port: input.cmd_port & 63,
         prio: 2,
@@ -152,12 +156,12 @@ fn check(input: Input) {
             Piece::Packet { header, to_node, payload } => {
                 let h = header.csp(&cfg, *to_node);
                 let payload = &payload[..payload.len().min(MAX_PAYLOAD)];
-                let n = CspPacket::emit_kiss(&h, payload, &mut out).expect("a MAX_PAYLOAD packet fits");
+                let n = CspPacket::emit_kiss(&h, cfg.version, payload, &mut out).expect("a MAX_PAYLOAD packet fits");
                 // CSP round trip through the KISS decoder.
                 let mut d = KissDecoder::<MAX_FRAME>::new();
                 let mut wire: &[u8] = &out[..n];
                 let frame = d.decode(&mut wire).expect("a frame").expect("a valid KISS frame");
-                let p = CspPacket::parse(frame).expect("an emitted packet parses");
+                let p = CspPacket::parse(frame, cfg.version).expect("an emitted packet parses");
                 assert_eq!(p.header, h);
                 assert_eq!(p.payload, payload);
                 stream.extend_from_slice(&out[..n]);
@@ -192,6 +196,7 @@ fn check(input: Input) {
     let node = BusNode::new(cfg);
     let n = node.encode_telemetry(&payload, &mut out).expect("telemetry fits");
     let mut ground = BusNode::new(BusConfig {
+        version: cfg.version,
         addr: cfg.ground_addr,
         ground_addr: cfg.addr,
         telemetry_port: cfg.command_port,
@@ -207,7 +212,7 @@ fn check(input: Input) {
             let mut d = KissDecoder::<MAX_FRAME>::new();
             let mut wire: &[u8] = &out[..n];
             let frame = d.decode(&mut wire).unwrap().unwrap();
-            let r = CspPacket::parse(frame).expect("reply parses");
+            let r = CspPacket::parse(frame, cfg.version).expect("reply parses");
             assert_eq!(r.header, h.reply());
             assert_eq!(r.payload, &p[..]);
         }

@@ -24,6 +24,7 @@ use firmware::sim::clock::{self, Mode};
 use firmware::sim::flash::FileFlash;
 use firmware::sim::node::{self, Board};
 use shared::bus::BusConfig;
+use shared::bus::csp::CspVersion;
 use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
 use shared::storage::CalStore;
 use shared::wire::FrameDecoder;
@@ -45,6 +46,15 @@ struct Args {
     /// Feed the log as fast as the tasks take it instead of at its frame rate.
     #[arg(long)]
     fast: bool,
+    /// CSP header version on the bus: 1 (libcsp 1.x, Yamcs) or 2 (libcsp 2.x's default, 14-bit addresses).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
+    csp_version: u8,
+    /// Our CSP address (v1 ≤ 31, v2 ≤ 16383).
+    #[arg(long, default_value_t = BusConfig::DEFAULT.addr)]
+    addr: u16,
+    /// The ground station's CSP address: destination of telemetry.
+    #[arg(long, default_value_t = BusConfig::DEFAULT.ground_addr)]
+    ground_addr: u16,
 }
 
 static STOP: Signal<CriticalSectionRawMutex, ()> = Signal::new();
@@ -62,6 +72,20 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args) -> Result<(), String> {
+    let version = if args.csp_version == 2 {
+        CspVersion::V2
+    } else {
+        CspVersion::V1
+    };
+    if args.addr.max(args.ground_addr) > version.max_addr() {
+        return Err(format!(
+            "CSP v{} addresses are at most {} (--addr {}, --ground-addr {})",
+            args.csp_version,
+            version.max_addr(),
+            args.addr,
+            args.ground_addr
+        ));
+    }
     let frames = std::fs::read(&args.frames)
         .map_err(|e| format!("reading {}: {e}", args.frames.display()))?;
     let (flash_path, temporary) = match &args.flash {
@@ -83,9 +107,15 @@ fn run(args: &Args) -> Result<(), String> {
     let mut pipeline = Pipeline::new(config, Box::new(AllanBank::new()));
     let mut store = CalStore::new(flash).map_err(|e| format!("flash geometry: {e:?}"))?;
     app::load_calibration(&mut store, &mut pipeline);
-    let app = App::new(pipeline, BusConfig::DEFAULT);
+    let bus_config = BusConfig {
+        version,
+        addr: args.addr,
+        ground_addr: args.ground_addr,
+        ..BusConfig::DEFAULT
+    };
+    let app = App::new(pipeline, bus_config);
     log::info!(
-        "sitl: {} bytes of frames ({}), bus {}, flash {}",
+        "sitl: {} bytes of frames ({}), bus {} (CSP v{}), flash {}",
         frames.len(),
         if args.fast {
             "as fast as taken"
@@ -93,6 +123,7 @@ fn run(args: &Args) -> Result<(), String> {
             "at the log's frame rate"
         },
         args.bus.display(),
+        args.csp_version,
         flash_path.display()
     );
 

@@ -94,7 +94,7 @@ pub struct Ground {
     /// Telemetry received, in order.
     pub telemetry: Vec<Telemetry>,
     /// Ping replies received: (source address, payload).
-    pub pings: Vec<(u8, Vec<u8>)>,
+    pub pings: Vec<(u16, Vec<u8>)>,
     /// Bus bytes received, all of them.
     pub bytes: Vec<u8>,
     /// Frames that did not parse (KISS, CSP or postcard).
@@ -136,7 +136,8 @@ impl Ground {
     /// Arbitrary payload bytes to `dport` as bus bytes.
     pub fn packet(&self, dport: u8, payload: &[u8]) -> Vec<u8> {
         let mut wire = [0u8; MAX_WIRE_FRAME];
-        let n = CspPacket::emit_kiss(&self.header(dport), payload, &mut wire).unwrap();
+        let n = CspPacket::emit_kiss(&self.header(dport), self.config.version, payload, &mut wire)
+            .unwrap();
         wire[..n].to_vec()
     }
 
@@ -178,7 +179,7 @@ impl Ground {
                 self.bad += 1;
                 continue;
             };
-            match CspPacket::parse(frame) {
+            match CspPacket::parse(frame, self.config.version) {
                 Ok(p) if p.header.sport == shared::bus::csp::PORT_PING => {
                     self.pings.push((p.header.src, p.payload.to_vec()))
                 }

@@ -10,6 +10,7 @@ use host_test::plot;
 use host_test::replay::{ReplayOptions, replay};
 use indicatif::{ProgressBar, ProgressStyle};
 use shared::bus::BusConfig;
+use shared::bus::csp::CspVersion;
 use shared::fuse::FusionMode;
 use shared::pipeline::PipelineConfig;
 use std::path::{Path, PathBuf};
@@ -221,6 +222,18 @@ struct ReplayArgs {
     /// FPGA base rate before decimation, Hz.
     #[arg(long, default_value_t = 9676.8)]
     base_rate_hz: f64,
+    /// CSP header version on the bus (1: libcsp 1.x, Yamcs; 2: libcsp 2.x's default).
+    #[arg(long, default_value = "1", value_parser = parse_csp_version)]
+    csp_version: CspVersion,
+}
+
+/// `--csp-version 1|2`.
+fn parse_csp_version(s: &str) -> Result<CspVersion, String> {
+    match s {
+        "1" => Ok(CspVersion::V1),
+        "2" => Ok(CspVersion::V2),
+        _ => Err(format!("CSP header version must be 1 or 2, not {s}")),
+    }
 }
 
 #[derive(clap::Args)]
@@ -233,6 +246,9 @@ struct DecodeArgs {
     /// Also the Allan deviations of the core's Allan reports (roots taken here), as CSV.
     #[arg(long)]
     allan: Option<PathBuf>,
+    /// CSP header version on the bus (1 or 2).
+    #[arg(long, default_value = "1", value_parser = parse_csp_version)]
+    csp_version: CspVersion,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -415,7 +431,10 @@ fn replay_cmd(a: ReplayArgs) -> Result<()> {
     let opts = ReplayOptions {
         config,
         cal,
-        bus: BusConfig::DEFAULT,
+        bus: BusConfig {
+            version: a.csp_version,
+            ..BusConfig::DEFAULT
+        },
         final_dump: true,
         check: a.check,
     };
@@ -480,7 +499,13 @@ fn decode(a: DecodeArgs) -> Result<()> {
     };
     let bytes =
         std::fs::read(&a.input).with_context(|| format!("reading {}", a.input.display()))?;
-    let log = TelemetryLog::decode(&bytes, &BusConfig::DEFAULT);
+    let log = TelemetryLog::decode(
+        &bytes,
+        &BusConfig {
+            version: a.csp_version,
+            ..BusConfig::DEFAULT
+        },
+    );
     let s = log.stats;
     if log.messages.is_empty() {
         bail!(

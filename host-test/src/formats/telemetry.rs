@@ -1,4 +1,4 @@
-//! The telemetry stream: bus bytes (CSP v1 packets in KISS frames, `docs/bus.md`) carrying postcard messages
+//! The telemetry stream: bus bytes (CSP packets, header version 1 or 2, in KISS frames, `docs/bus.md`) carrying postcard messages
 //! (`docs/telemetry.md`), decoded with the core's own codecs.
 
 use shared::bus::csp::CspPacket;
@@ -42,7 +42,7 @@ impl TelemetryLog {
                 log.stats.kiss_errors += 1;
                 continue;
             };
-            match CspPacket::parse(frame) {
+            match CspPacket::parse(frame, config.version) {
                 Ok(p)
                     if p.header.dst == config.ground_addr
                         && p.header.dport == config.telemetry_port =>

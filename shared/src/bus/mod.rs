@@ -1,17 +1,20 @@
-//! The CubeSat bus: CSP v1 packets in KISS frames, carrying the postcard messages of [`crate::telemetry`]
+//! The CubeSat bus: CSP packets (header version 1 or 2) in KISS frames, carrying the postcard messages of [`crate::telemetry`]
 //! (spec: `docs/bus.md`). [`BusNode`] is the sans-IO endpoint: bus bytes in, command and ping events out;
 //! telemetry payloads in, KISS frames out. The firmware only moves bytes.
 
 pub mod csp;
 pub mod kiss;
 
-use csp::{CspError, CspHeader, CspPacket, PORT_PING};
+use csp::{CspError, CspHeader, CspPacket, CspVersion, PORT_PING};
 use kiss::KissDecoder;
 
-/// Largest decoded KISS frame: header, 248 bytes of payload, link CRC (what every libcsp 1.x accepts by default).
-pub const MAX_FRAME: usize = 256;
-/// Largest payload we send or accept.
-pub const MAX_PAYLOAD: usize = MAX_FRAME - csp::HEADER_LEN - 2 * csp::CRC_LEN;
+/// Largest CSP payload on the link, end-to-end CRC included: 248 bytes, what every libcsp 1.x accepts by default
+/// (and well inside libcsp 2.x's 256-byte buffers).
+pub const MAX_CSP_DATA: usize = 248;
+/// Largest decoded KISS frame: header (6 bytes in v2, 4 in v1), [`MAX_CSP_DATA`], link CRC.
+pub const MAX_FRAME: usize = csp::HEADER_LEN_MAX + MAX_CSP_DATA + csp::CRC_LEN;
+/// Largest payload we send or accept (room left for an end-to-end CRC).
+pub const MAX_PAYLOAD: usize = MAX_CSP_DATA - csp::CRC_LEN;
 /// Largest encoded KISS frame on the wire.
 pub const MAX_WIRE_FRAME: usize = kiss::encoded_len_max(MAX_FRAME);
 
@@ -19,10 +22,12 @@ pub const MAX_WIRE_FRAME: usize = kiss::encoded_len_max(MAX_FRAME);
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct BusConfig {
-    /// Our CSP address.
-    pub addr: u8,
+    /// CSP header version of the link.
+    pub version: CspVersion,
+    /// Our CSP address (v1 ≤ 31, v2 ≤ 16383).
+    pub addr: u16,
     /// The ground station's address (destination of telemetry).
-    pub ground_addr: u8,
+    pub ground_addr: u16,
     /// Ground port that receives telemetry (acks included).
     pub telemetry_port: u8,
     /// Our port that receives commands.
@@ -32,8 +37,10 @@ pub struct BusConfig {
 }
 
 impl BusConfig {
-    /// Defaults: we are node 10, the ground node 1; telemetry to port 10, commands on port 11, normal priority.
+    /// Defaults: CSP v1; we are node 10, the ground node 1; telemetry to port 10, commands on port 11, normal
+    /// priority.
     pub const DEFAULT: Self = Self {
+        version: CspVersion::V1,
         addr: 10,
         ground_addr: 1,
         telemetry_port: 10,
@@ -113,7 +120,7 @@ impl BusNode {
                     continue;
                 }
             };
-            match CspPacket::parse(frame) {
+            match CspPacket::parse(frame, self.config.version) {
                 Ok(p)
                     if p.header.dst == self.config.addr
                         && p.header.dport == self.config.command_port =>
@@ -129,7 +136,8 @@ impl BusNode {
         };
         self.counters.packets = self.counters.packets.wrapping_add(1);
         // Parsed again from the decoder's buffer: the borrow above ended with the loop.
-        let payload = CspPacket::parse(self.kiss.last_frame()).map_or(&[][..], |p| p.payload);
+        let payload = CspPacket::parse(self.kiss.last_frame(), self.config.version)
+            .map_or(&[][..], |p| p.payload);
         Some(match kind {
             Kind::Command => BusEvent::Command(payload),
             Kind::Ping(header) => BusEvent::Ping { header, payload },
@@ -169,7 +177,7 @@ impl BusNode {
         if payload.len() > MAX_PAYLOAD {
             return Err(CspError::Invalid);
         }
-        CspPacket::emit_kiss(header, payload, out)
+        CspPacket::emit_kiss(header, self.config.version, payload, out)
     }
 }
 

@@ -39,8 +39,8 @@ fn header_vectors() {
             sport,
             flags,
         };
-        assert_eq!(h.emit().unwrap().to_vec(), hex(wire));
-        assert_eq!(CspHeader::parse(&hex(wire)), Ok(h));
+        assert_eq!(h.emit(CspVersion::V1).unwrap().to_vec(), hex(wire));
+        assert_eq!(CspHeader::parse(&hex(wire), CspVersion::V1), Ok(h));
     }
     assert_eq!(
         CspHeader {
@@ -51,9 +51,151 @@ fn header_vectors() {
             sport: 0,
             flags: 0
         }
-        .emit(),
+        .emit(CspVersion::V1),
         Err(CspError::Invalid)
     );
+}
+
+/// v2: 48 bits, prio:2 | dst:14 | src:14 | dport:6 | sport:6 | flags:6 (libcsp 2.x `csp_id.c`, `csp_id2_prepend`).
+#[test]
+fn header_vectors_v2() {
+    let cases = [
+        ((2, 1, 10, 11, 40, FLAG_CRC32), "80 0A 00 04 BA 01"),
+        ((2, 10, 1, 10, 11, 0), "80 01 00 28 A2 C0"),
+        ((3, 0, 16383, 63, 0, 0), "FF FF 00 03 F0 00"),
+        ((0, 16383, 0, 0, 63, 0x3F), "00 00 FF FC 0F FF"),
+        ((2, 1, 5000, 1, 33, 0), "93 88 00 04 18 40"),
+    ];
+    for ((prio, src, dst, dport, sport, flags), wire) in cases {
+        let h = CspHeader {
+            prio,
+            src,
+            dst,
+            dport,
+            sport,
+            flags,
+        };
+        assert_eq!(h.emit(CspVersion::V2).unwrap().to_vec(), hex(wire));
+        assert_eq!(CspHeader::parse(&hex(wire), CspVersion::V2), Ok(h));
+    }
+    let h = CspHeader {
+        prio: 2,
+        src: 1,
+        dst: 10,
+        dport: 11,
+        sport: 40,
+        flags: 0,
+    };
+    // Out of a version's range: 14-bit addresses and 6-bit flags in v2, 5-bit addresses in v1.
+    for bad in [
+        CspHeader { src: 16384, ..h },
+        CspHeader { dst: 16384, ..h },
+        CspHeader { flags: 0x40, ..h },
+        CspHeader { dport: 64, ..h },
+    ] {
+        assert_eq!(bad.emit(CspVersion::V2), Err(CspError::Invalid));
+    }
+    assert_eq!(
+        CspHeader { dst: 32, ..h }.emit(CspVersion::V1),
+        Err(CspError::Invalid)
+    );
+    assert_eq!(
+        CspHeader::parse(&[0; 5], CspVersion::V2),
+        Err(CspError::TooShort)
+    );
+}
+
+/// libcsp's `csp_crc32_verify` accepts a CRC over the payload or over header and payload (a libcsp 2.1 build
+/// sends the latter); so do we, for the link CRC and the end-to-end CRC, in both versions.
+#[test]
+fn crc_over_header_and_payload_is_accepted() {
+    for version in [CspVersion::V1, CspVersion::V2] {
+        let h = CspHeader {
+            prio: 2,
+            src: 1,
+            dst: 10,
+            dport: 11,
+            sport: 40,
+            flags: FLAG_CRC32,
+        };
+        let head = h.emit(version).unwrap();
+        let data = b"cmd";
+        let mut inner = crate::crc::Crc32c::new();
+        inner.update(&head);
+        inner.update(data);
+        let mut body = data.to_vec();
+        body.extend_from_slice(&inner.finish().to_be_bytes());
+        let mut link = crate::crc::Crc32c::new();
+        link.update(&head);
+        link.update(&body);
+        let mut frame = head.to_vec();
+        frame.extend_from_slice(&body);
+        frame.extend_from_slice(&link.finish().to_be_bytes());
+        let p = CspPacket::parse(&frame, version).unwrap();
+        assert_eq!((p.header, p.payload), (h, &data[..]));
+        // One bit off in the header: neither form matches any more.
+        frame[1] ^= 0x01;
+        assert_eq!(
+            CspPacket::parse(&frame, version).unwrap_err(),
+            CspError::Crc
+        );
+    }
+}
+
+/// A v2 node: commands and pings with 14-bit addresses, telemetry out; a v1 frame is not mistaken for one.
+#[test]
+fn a_v2_node_serves_commands_pings_and_telemetry() {
+    let config = BusConfig {
+        version: CspVersion::V2,
+        addr: 5000,
+        ground_addr: 12000,
+        ..BusConfig::DEFAULT
+    };
+    let mut n = BusNode::new(config);
+    let to_us = CspHeader {
+        prio: 2,
+        src: 12000,
+        dst: 5000,
+        dport: 11,
+        sport: 40,
+        flags: 0,
+    };
+    let mut wire = [0u8; MAX_WIRE_FRAME];
+    let len = CspPacket::emit_kiss(&to_us, CspVersion::V2, b"cmd", &mut wire).unwrap();
+    assert_eq!(
+        one_event(&mut n, &wire[..len]),
+        Some((None, b"cmd".to_vec()))
+    );
+    let ping = CspHeader {
+        dport: PORT_PING,
+        sport: 33,
+        flags: FLAG_CRC32,
+        ..to_us
+    };
+    let len = CspPacket::emit_kiss(&ping, CspVersion::V2, &[7; MAX_PAYLOAD], &mut wire).unwrap();
+    let (header, payload) = one_event(&mut n, &wire[..len]).unwrap();
+    let header = header.expect("a ping");
+    let len = n.encode_reply(&header, &payload, &mut wire).unwrap();
+    let mut dec = KissDecoder::<MAX_FRAME>::new();
+    let mut input = &wire[..len];
+    let p = CspPacket::parse(dec.decode(&mut input).unwrap().unwrap(), CspVersion::V2).unwrap();
+    assert_eq!((p.header, p.payload), (ping.reply(), &[7; MAX_PAYLOAD][..]));
+
+    let len = n.encode_telemetry(b"tm", &mut wire).unwrap();
+    let mut input = &wire[..len];
+    let p = CspPacket::parse(dec.decode(&mut input).unwrap().unwrap(), CspVersion::V2).unwrap();
+    assert_eq!(
+        (p.header.src, p.header.dst, p.header.dport, p.payload),
+        (5000, 12000, 10, &b"tm"[..])
+    );
+    // Fragmentation is refused in v2.
+    let frag = CspHeader {
+        flags: FLAG_FRAG,
+        ..to_us
+    };
+    let len = CspPacket::emit_kiss(&frag, CspVersion::V2, b"x", &mut wire).unwrap();
+    assert_eq!(one_event(&mut n, &wire[..len]), None);
+    assert_eq!(n.counters().csp_errors, 1);
 }
 
 #[test]
@@ -109,7 +251,7 @@ fn escaping_and_empty_payload_vectors() {
         flags: 0,
     };
     let mut out = [0u8; 64];
-    let n = CspPacket::emit_kiss(&h, &[0xC0, 0xDB], &mut out).unwrap();
+    let n = CspPacket::emit_kiss(&h, CspVersion::V1, &[0xC0, 0xDB], &mut out).unwrap();
     assert_eq!(
         out[..n].to_vec(),
         hex("C0 00 DB DC 10 78 00 DB DC DB DD BF EF 01 BF C0")
@@ -122,13 +264,13 @@ fn escaping_and_empty_payload_vectors() {
         sport: 33,
         flags: 0,
     };
-    let n = CspPacket::emit_kiss(&h, &[], &mut out).unwrap();
+    let n = CspPacket::emit_kiss(&h, CspVersion::V1, &[], &mut out).unwrap();
     assert_eq!(out[..n].to_vec(), hex("C0 00 82 A2 A1 00 00 00 00 00 C0"));
     // Decoding the escaped frame gives back header and payload.
     let mut dec = KissDecoder::<64>::new();
     let mut input = &hex("C0 00 DB DC 10 78 00 DB DC DB DD BF EF 01 BF C0")[..];
     let frame = dec.decode(&mut input).unwrap().unwrap();
-    let p = CspPacket::parse(frame).unwrap();
+    let p = CspPacket::parse(frame, CspVersion::V1).unwrap();
     assert_eq!((p.header.dport, p.payload), (1, &[0xC0, 0xDB][..]));
 }
 
@@ -144,20 +286,20 @@ fn commands_reach_us_and_telemetry_goes_to_the_ground() {
         flags: 0,
     };
     let mut wire = [0u8; MAX_WIRE_FRAME];
-    let len = CspPacket::emit_kiss(&to_us, b"cmd", &mut wire).unwrap();
+    let len = CspPacket::emit_kiss(&to_us, CspVersion::V1, b"cmd", &mut wire).unwrap();
     assert_eq!(
         one_event(&mut n, &wire[..len]),
         Some((None, b"cmd".to_vec()))
     );
     let elsewhere = CspHeader { dst: 11, ..to_us };
-    let len = CspPacket::emit_kiss(&elsewhere, b"cmd", &mut wire).unwrap();
+    let len = CspPacket::emit_kiss(&elsewhere, CspVersion::V1, b"cmd", &mut wire).unwrap();
     assert_eq!(one_event(&mut n, &wire[..len]), None);
     assert_eq!(n.counters().ignored, 1);
 
     let len = n.encode_telemetry(b"tm", &mut wire).unwrap();
     let mut dec = KissDecoder::<MAX_FRAME>::new();
     let mut input = &wire[..len];
-    let p = CspPacket::parse(dec.decode(&mut input).unwrap().unwrap()).unwrap();
+    let p = CspPacket::parse(dec.decode(&mut input).unwrap().unwrap(), CspVersion::V1).unwrap();
     assert_eq!(
         (p.header.src, p.header.dst, p.header.dport, p.payload),
         (10, 1, 10, &b"tm"[..])
@@ -192,19 +334,19 @@ fn bad_frames_give_typed_errors() {
         [Err(KissError::BadEscape), Ok(std::vec![9])]
     );
     assert_eq!(
-        CspPacket::parse(&[1, 2, 3, 4, 5, 6, 7]),
+        CspPacket::parse(&[1, 2, 3, 4, 5, 6, 7], CspVersion::V1),
         Err(CspError::TooShort)
     );
     assert_eq!(
-        CspPacket::parse(&hex("82 A2 A1 00 00 00 00 01")),
+        CspPacket::parse(&hex("82 A2 A1 00 00 00 00 01"), CspVersion::V1),
         Err(CspError::Crc)
     );
     assert_eq!(
-        CspPacket::parse(&hex("82 A2 A1 01 00 00 00 00")),
+        CspPacket::parse(&hex("82 A2 A1 01 00 00 00 00"), CspVersion::V1),
         Err(CspError::InnerCrc)
     );
     assert_eq!(
-        CspPacket::parse(&hex("82 A2 A1 02 00 00 00 00")),
+        CspPacket::parse(&hex("82 A2 A1 02 00 00 00 00"), CspVersion::V1),
         Err(CspError::Unsupported(FLAG_RDP))
     );
 }
@@ -219,7 +361,7 @@ proptest! {
         let mut n = node();
         let to_us = CspHeader { prio: 1, src: 3, dst: 10, dport: 11, sport: 50, flags: FLAG_CRC32 };
         let mut wire = [0u8; MAX_WIRE_FRAME];
-        let len = CspPacket::emit_kiss(&to_us, &payload, &mut wire).unwrap();
+        let len = CspPacket::emit_kiss(&to_us, CspVersion::V1, &payload, &mut wire).unwrap();
         let mut stream: Vec<u8> = garbage.iter().copied().filter(|&b| b != FEND).collect();
         stream.extend_from_slice(&wire[..len]);
         stream.extend_from_slice(&garbage);
@@ -232,10 +374,11 @@ proptest! {
         let mut n = node();
         let mut input = &bytes[..];
         while n.receive(&mut input).is_some() {}
-        let _ = CspPacket::parse(&bytes);
+        let _ = CspPacket::parse(&bytes, CspVersion::V1);
+        let _ = CspPacket::parse(&bytes, CspVersion::V2);
         let mut wire = [0u8; MAX_WIRE_FRAME];
         let h = CspHeader { prio: 2, src: 1, dst: 10, dport: 11, sport: 40, flags: 0 };
-        let len = CspPacket::emit_kiss(&h, b"after", &mut wire).unwrap();
+        let len = CspPacket::emit_kiss(&h, CspVersion::V1, b"after", &mut wire).unwrap();
         prop_assert_eq!(one_event(&mut n, &wire[..len]), Some((None, b"after".to_vec())));
     }
 }
