@@ -150,7 +150,8 @@ pub struct App<B> {
     telemetry: Channel<Raw, Telemetry, TELEMETRY_QUEUE>,
     replies: Channel<Raw, BusOut, REPLY_QUEUE>,
     fpga: Channel<Raw, FpgaControl, 4>,
-    persist: Signal<Raw, ()>,
+    /// The tag of a committed upload to store.
+    persist: Signal<Raw, u16>,
     progress: [AtomicU32; 3],
     counters: AtomicCounters,
 }
@@ -228,7 +229,7 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
                     self.count(Counter::FpgaDropped);
                 }
             }
-            Output::PersistCalibration => self.persist.signal(()),
+            Output::PersistCalibration { tag } => self.persist.signal(tag),
         }
     }
 
@@ -427,7 +428,10 @@ pub fn load_calibration<F: NorFlash, B: core::borrow::BorrowMut<AllanBank>>(
     }
 }
 
-/// Persists the calibration in force whenever an upload is committed.
+/// Persists the calibration in force whenever an upload is committed, then sends the commit's ack: `Ok` only once
+/// the record is written and read back (`CalStore::store`), `Storage` otherwise. The erase stalls the CPU
+/// (single-bank flash, `docs/storage.md`): FPGA bytes arriving meanwhile overrun the ring and are counted, bus bytes
+/// wait in the bus's DMA ring.
 pub async fn storage_loop<B, F>(app: &App<B>, store: &mut CalStore<F>) -> !
 where
     B: core::borrow::BorrowMut<AllanBank>,
@@ -436,23 +440,27 @@ where
 {
     let mut scratch = [0u8; CAL_SCRATCH];
     loop {
-        app.persist.wait().await;
+        let tag = app.persist.wait().await;
         let table = *app.pipeline.lock().await.calibration();
-        // The erase stalls the CPU (single-bank flash): FPGA bytes arriving meanwhile overrun the ring and are
-        // counted; the watchdog timeout covers the stall.
-        match store.store(&table, &mut scratch) {
+        let stored = match store.store(&table, &mut scratch) {
             Ok(seq) => {
                 app.count(Counter::CalStores);
                 info!(
                     "calibration: id {:?} stored as record {:?}",
                     table.cal_id, seq
                 );
+                true
             }
             Err(e) => {
                 app.count(Counter::CalStoreErrors);
                 error!("calibration: store failed: {:?}", e);
+                false
             }
-        }
+        };
+        let ack = app.pipeline.lock().await.calibration_persisted(tag, stored);
+        app.replies
+            .send(BusOut::Telemetry(Telemetry::Ack(ack)))
+            .await;
     }
 }
 

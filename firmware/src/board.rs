@@ -5,17 +5,22 @@
 //! |---------------------|------------|------------------|-------------------------------------------|
 //! | FPGA frames (RX)    | USART1     | PA10 (AF7)       | 2 Mbaud, DMA2 stream 2 ch 4, ring buffer  |
 //! | FPGA control (TX)   | USART1     | PA9  (AF7)       | DMA2 stream 7 ch 4                        |
-//! | CubeSat bus         | USART2     | PA3 RX / PA2 TX  | 115200 baud, interrupt-driven, buffered   |
+//! | CubeSat bus         | USART2     | PA3 RX / PA2 TX  | 115200 baud, RX DMA1 stream 5 ring, TX DMA1 stream 6 |
 //! | status LED          | GPIO       | PC13             | push-pull, toggled when the watchdog is fed |
 //! | watchdog            | IWDG       | -                | LSI ≈ 32 kHz, 8 s                         |
-//! | calibration slots   | FLASH      | -                | sectors 10 (A) and 11 (B), 0x080C_0000    |
-//! | time driver         | TIM5       | -                | embassy `time-driver-tim5`                |
+//! | calibration slots   | FLASH      | -                | sectors 1 (A) and 2 (B), 0x0800_4000, x32 erase |
+//! | time driver         | TIM5       | -                | embassy `time-driver-tim5`, 16 kHz tick   |
+//!
+//! The flash accelerator (prefetch, instruction and data caches), which `embassy_stm32::init` leaves off (its RCC
+//! init writes FLASH_ACR with the wait states only), is turned on here. Time: embassy's TIM5 driver counts 16-bit
+//! periods of 2¹⁵ ticks and loses time when interrupts stay off for more than that; at 16 kHz that is 2.05 s, four
+//! times the longest flash stall (a 16 KiB erase, ≤ 0.5 s; `docs/storage.md`), where 1 MHz would allow 33 ms.
 //!
 //! Clocks: 8 MHz HSE → PLL (M 4, N 168, P 2, Q 7): SYSCLK = HCLK = 168 MHz, APB1 42 MHz, APB2 84 MHz. If the HSE
 //! does not start within ~100 ms the same 168 MHz comes from the 16 MHz HSI (±1 % over temperature) and the boot log
 //! says so (embassy's own RCC init would wait forever for the HSE).
 
-use embassy_stm32::flash::{Bank1Region3, Blocking, Flash};
+use embassy_stm32::flash::{Bank1Region1, Blocking, Flash};
 use embassy_stm32::gpio::{Level, Output, Speed};
 use embassy_stm32::mode::Async;
 use embassy_stm32::peripherals::IWDG;
@@ -24,50 +29,50 @@ use embassy_stm32::rcc::{
     Sysclk,
 };
 use embassy_stm32::time::Hertz;
-use embassy_stm32::usart::{
-    self, BufferedUart, BufferedUartRx, BufferedUartTx, RingBufferedUartRx, Uart, UartTx,
-};
+use embassy_stm32::usart::{self, RingBufferedUartRx, Uart, UartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dma, peripherals};
+use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use static_cell::ConstStaticCell;
 
 use firmware::flash::FlashWindow;
-use firmware::layout::{CAL_FLASH_BASE, CAL_SECTOR_LEN, CAL_SECTORS, FPGA_RX_RING_LEN};
+use firmware::layout::{
+    BUS_RX_RING_LEN, CAL_FLASH_BASE, CAL_SECTOR_LEN, CAL_SECTORS, FPGA_RX_RING_LEN,
+};
 
 pub use firmware::layout::{BUS_BAUD, FPGA_BAUD};
 
 bind_interrupts!(pub struct Irqs {
     USART1 => usart::InterruptHandler<peripherals::USART1>;
-    USART2 => usart::BufferedInterruptHandler<peripherals::USART2>;
+    USART2 => usart::InterruptHandler<peripherals::USART2>;
+    DMA1_STREAM5 => dma::InterruptHandler<peripherals::DMA1_CH5>;
+    DMA1_STREAM6 => dma::InterruptHandler<peripherals::DMA1_CH6>;
     DMA2_STREAM2 => dma::InterruptHandler<peripherals::DMA2_CH2>;
     DMA2_STREAM7 => dma::InterruptHandler<peripherals::DMA2_CH7>;
 });
 
 // FPGA_BAUD: USART1 on PCLK2 = 84 MHz, 84 MHz / 2 Mbaud = 42, exact with 16× oversampling.
 // Budget: 240-byte frames at 604.8 /s = 1.452 Mbit/s with start/stop bits = 73 % of the line.
-/// IWDG timeout, nominal (LSI assumed 32 kHz; at the fastest LSI, 47 kHz, it is 5.4 s). It must exceed one
-/// 128 KiB sector erase (up to ~4 s on the F405 at the parallelism embassy uses) plus two watchdog periods.
+/// IWDG timeout, nominal (LSI assumed 32 kHz; at the fastest LSI, 47 kHz, it is 5.4 s). It must exceed the longest
+/// flash stall (a 16 KiB erase, ≤ 0.5 s) plus two watchdog periods: 4.4 s of margin at the fastest LSI.
 pub const WATCHDOG_TIMEOUT_US: u32 = 8_000_000;
 
-const BUS_RX_BUF_LEN: usize = 512;
-const BUS_TX_BUF_LEN: usize = 1024;
-
-/// Calibration window inside embassy's `Bank1Region3` (0x0802_0000 …, 7 sectors of 128 KiB).
-const REGION3_BASE: u32 = 0x0802_0000;
-const CALIB_LEN: u32 = (CAL_SECTORS * CAL_SECTOR_LEN) as u32; // sectors 10 and 11
+/// Calibration window inside embassy's `Bank1Region1` (0x0800_0000 …, 4 sectors of 16 KiB).
+const REGION1_BASE: u32 = 0x0800_0000;
+const CALIB_LEN: u32 = (CAL_SECTORS * CAL_SECTOR_LEN) as u32; // sectors 1 and 2
 
 /// FPGA frames: `embedded_io_async::Read` over the DMA ring.
 pub type FpgaRx = RingBufferedUartRx<'static>;
 /// FPGA control: `embedded_io_async::Write`.
 pub type FpgaTx = UartTx<'static, Async>;
-/// Bus receive: `embedded_io_async::Read`.
-pub type BusRx = BufferedUartRx<'static>;
+/// Bus receive: `embedded_io_async::Read` over the DMA ring (it fills while a flash erase stalls the CPU).
+pub type BusRx = RingBufferedUartRx<'static>;
 /// Bus transmit: `embedded_io_async::Write`.
-pub type BusTx = BufferedUartTx<'static>;
+pub type BusTx = UartTx<'static, Async>;
 /// The independent watchdog.
 pub type Watchdog = IndependentWatchdog<'static, IWDG>;
-/// `embedded_storage::nor_flash::NorFlash` over sectors 10 and 11 only.
-pub type CalibFlash = FlashWindow<Bank1Region3<'static, Blocking>>;
+/// `embedded_storage::nor_flash::NorFlash` over sectors 1 and 2 only.
+pub type CalibFlash = FlashWindow<Flash32>;
 /// Status LED: `embedded_hal::digital::OutputPin`.
 pub type Led = Output<'static>;
 
@@ -95,10 +100,8 @@ pub struct Board {
 // DMA-visible buffers: SRAM (.bss), never CCM.
 static FPGA_RX_RING: ConstStaticCell<[u8; FPGA_RX_RING_LEN]> =
     ConstStaticCell::new([0; FPGA_RX_RING_LEN]);
-static BUS_RX_BUF: ConstStaticCell<[u8; BUS_RX_BUF_LEN]> =
-    ConstStaticCell::new([0; BUS_RX_BUF_LEN]);
-static BUS_TX_BUF: ConstStaticCell<[u8; BUS_TX_BUF_LEN]> =
-    ConstStaticCell::new([0; BUS_TX_BUF_LEN]);
+static BUS_RX_RING: ConstStaticCell<[u8; BUS_RX_RING_LEN]> =
+    ConstStaticCell::new([0; BUS_RX_RING_LEN]);
 
 /// Brings up clocks and peripherals. Call once (it takes embassy's `Peripherals` singleton).
 pub fn init() -> Board {
@@ -108,6 +111,7 @@ pub fn init() -> Board {
         ClockSource::HsiFallback
     };
     let p = embassy_stm32::init(clock_config(clock));
+    enable_flash_accelerator();
 
     let mut fpga_cfg = usart::Config::default();
     fpga_cfg.baudrate = FPGA_BAUD;
@@ -126,17 +130,13 @@ pub fn init() -> Board {
     bus_cfg.baudrate = BUS_BAUD;
     // As for USART1: constant configuration, no input.
     #[allow(clippy::expect_used)]
-    let bus = BufferedUart::new(
-        p.USART2,
-        p.PA3,
-        p.PA2,
-        BUS_TX_BUF.take(),
-        BUS_RX_BUF.take(),
-        Irqs,
-        bus_cfg,
+    let bus = Uart::new(
+        p.USART2, p.PA3, p.PA2, p.DMA1_CH6, p.DMA1_CH5, Irqs, bus_cfg,
     )
     .expect("USART2 config");
     let (bus_tx, bus_rx) = bus.split();
+    let mut bus_rx = bus_rx.into_ring_buffered(BUS_RX_RING.take());
+    bus_rx.start_uart();
 
     // Freeze the watchdog while a debugger halts the core.
     embassy_stm32::pac::DBGMCU
@@ -144,10 +144,10 @@ pub fn init() -> Board {
         .modify(|w| w.set_iwdg(true));
     let watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
 
-    let region3 = Flash::new_blocking(p.FLASH)
+    let region1 = Flash::new_blocking(p.FLASH)
         .into_blocking_regions()
-        .bank1_region3;
-    let calib = FlashWindow::new(region3, CAL_FLASH_BASE - REGION3_BASE, CALIB_LEN);
+        .bank1_region1;
+    let calib = FlashWindow::new(Flash32(region1), CAL_FLASH_BASE - REGION1_BASE, CALIB_LEN);
 
     let led = Output::new(p.PC13, Level::High, Speed::Low);
 
@@ -160,6 +160,84 @@ pub fn init() -> Board {
         watchdog,
         calib,
         led,
+    }
+}
+
+/// Prefetch and the ART caches on (RM0090 §3.5.2: reset each cache while it is off, then enable).
+fn enable_flash_accelerator() {
+    use embassy_stm32::pac::FLASH;
+    FLASH.acr().modify(|w| {
+        w.set_icen(false);
+        w.set_dcen(false);
+    });
+    FLASH.acr().modify(|w| {
+        w.set_icrst(true);
+        w.set_dcrst(true);
+    });
+    FLASH.acr().modify(|w| {
+        w.set_icrst(false);
+        w.set_dcrst(false);
+    });
+    FLASH.acr().modify(|w| {
+        w.set_prften(true);
+        w.set_icen(true);
+        w.set_dcen(true);
+    });
+}
+
+/// Flash sectors 0–3 with erases at x32 parallelism (embassy-stm32 0.6 erases with whatever PSIZE is in FLASH_CR,
+/// which its writes leave at x8: a 16 KiB erase then takes up to 0.8 s instead of 0.5 s) and a data-cache reset
+/// after every erase and program (the D-cache may hold the old contents of what was just changed; RM0090 §3.5.2).
+/// x32 needs VDD 2.7–3.6 V (DS8626): the board's 3.3 V rail.
+pub struct Flash32(Bank1Region1<'static, Blocking>);
+
+impl ErrorType for Flash32 {
+    type Error = embassy_stm32::flash::Error;
+}
+
+impl ReadNorFlash for Flash32 {
+    const READ_SIZE: usize = <Bank1Region1<'static, Blocking> as ReadNorFlash>::READ_SIZE;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        self.0.read(offset, bytes)
+    }
+    fn capacity(&self) -> usize {
+        self.0.capacity()
+    }
+}
+
+impl NorFlash for Flash32 {
+    const WRITE_SIZE: usize = <Bank1Region1<'static, Blocking> as NorFlash>::WRITE_SIZE;
+    const ERASE_SIZE: usize = <Bank1Region1<'static, Blocking> as NorFlash>::ERASE_SIZE;
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        use embassy_stm32::pac::FLASH;
+        use embassy_stm32::pac::flash::vals::Psize;
+        // Unlock (embassy's erase then skips its own unlock and keeps CR's PSIZE: it only `modify`s SER/SNB/STRT,
+        // and locks again when done).
+        cortex_m::interrupt::free(|_| {
+            if FLASH.cr().read().lock() {
+                FLASH.keyr().write_value(0x4567_0123);
+                FLASH.keyr().write_value(0xCDEF_89AB);
+            }
+            FLASH.cr().modify(|w| w.set_psize(Psize::PSIZE32));
+        });
+        let r = self.0.erase(from, to);
+        reset_data_cache();
+        r
+    }
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        let r = self.0.write(offset, bytes);
+        reset_data_cache();
+        r
+    }
+}
+
+fn reset_data_cache() {
+    use embassy_stm32::pac::FLASH;
+    if FLASH.acr().read().dcen() {
+        FLASH.acr().modify(|w| w.set_dcen(false));
+        FLASH.acr().modify(|w| w.set_dcrst(true));
+        FLASH.acr().modify(|w| w.set_dcrst(false));
+        FLASH.acr().modify(|w| w.set_dcen(true));
     }
 }
 

@@ -1,5 +1,5 @@
 //! A `NorFlash` window that confines every access to a fixed, erase-aligned sub-range of a larger `NorFlash`
-//! (here: sectors 10 and 11 of the STM32F405 inside embassy-stm32's `Bank1Region3`), for `shared::storage`.
+//! (here: sectors 1 and 2 of the STM32F405 inside embassy-stm32's `Bank1Region1`), for `shared::storage`.
 //! Chip-independent: `board.rs` decides which flash and which offsets.
 
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};

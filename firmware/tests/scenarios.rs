@@ -266,30 +266,36 @@ fn uploaded_calibration_survives_a_restart() {
 }
 
 /// A power cut at every flash operation of a commit made through the tasks: the next boot has the old table or the
-/// new one, never the factory default.
+/// new one, never the factory default; and the commit's ack says `Ok` only when the new one survives.
 #[test]
 fn power_cut_at_every_flash_step_of_a_commit_keeps_old_or_new() {
     let (old, new) = (table(1), table(2));
+    // The commit's ack (the flash model fails every operation after the cut, so the tasks live on to answer).
     let upload = |sat: &mut Sat, t: &CalibrationTable<GROUPS>| {
         let mut ground = Ground::new();
         let cmds = upload_commands(t, 48, 9);
-        sat.run(MINUTE, async |app, board| {
+        sat.run(MINUTE, async |_app, board| {
+            let mut last = None;
             for (tag, cmd) in cmds {
-                assert_eq!(ground.transact(board, tag, cmd).await.result, Ok(()));
+                let commit = cmd == Command::CalCommit;
+                let ack = ground.transact(board, tag, cmd).await;
+                if commit {
+                    last = Some(ack.result);
+                } else {
+                    assert_eq!(ack.result, Ok(()));
+                }
             }
-            while app.counters().cal_stores + app.counters().cal_store_errors == 0 {
-                Timer::after(Duration::from_millis(10)).await;
-            }
-        });
+            last.expect("a commit")
+        })
     };
     let mut sat = Sat::fresh();
-    upload(&mut sat, &old);
+    assert_eq!(upload(&mut sat, &old), Ok(()));
     let base = sat.into_flash();
     let start = base.ops;
 
     // One complete commit, to learn how many operations it takes.
     let mut sat = Sat::boot(base.clone(), None);
-    upload(&mut sat, &new);
+    assert_eq!(upload(&mut sat, &new), Ok(()));
     let steps = sat.into_flash().ops - start;
     assert!(steps > 2, "an erase and some writes: {steps}");
 
@@ -298,7 +304,7 @@ fn power_cut_at_every_flash_step_of_a_commit_keeps_old_or_new() {
         let mut flash = base.clone();
         flash.budget = Some(start + cut);
         let mut sat = Sat::boot(flash, None);
-        upload(&mut sat, &new);
+        let acked = upload(&mut sat, &new);
         let mut flash = sat.into_flash();
         flash.budget = None;
         let sat = Sat::boot(flash, None);
@@ -310,6 +316,10 @@ fn power_cut_at_every_flash_step_of_a_commit_keeps_old_or_new() {
         );
         let id = p.calibration().cal_id;
         assert!(id == 1 || id == 2, "cut after {cut}: table {id}");
+        assert!(
+            acked == Ok(()) && id == 2 || acked == Err(Reject::Storage),
+            "cut after {cut}: ack {acked:?}, table {id} after the reboot"
+        );
         outcomes[(id - 1) as usize] += 1;
     }
     // Both outcomes occur: the cut lands before and after the new record is complete.
@@ -433,5 +443,86 @@ fn pings_are_echoed() {
             .pings
             .iter()
             .all(|(src, p)| *src == 10 && p == b"abcdefgh")
+    );
+}
+
+/// A calibration store while frames stream, with the flash stalling the CPU for the F405's worst-case erase and
+/// program times (`sim::flash::Stalling`): the frames lost stay within `layout::store_frames_lost_max` (and some
+/// are lost: the stall is modelled), the reports' time runs on across the gap, a command the ground sends while the
+/// store runs is answered, and the commit's ack comes only after the record is stored.
+#[test]
+fn a_store_during_streaming_loses_at_most_the_documented_frames_and_no_command() {
+    let frames_n = 3 * 605; // 3 s
+    let log = frames(frames_n);
+    let mut sat = Sat::fresh();
+    let mut ground = Ground::new();
+    let cmds = upload_commands(&table(5), shared::telemetry::CAL_CHUNK_MAX, 20);
+    let period = frame_period();
+    let (commit_acked_after_store, ping_ack) = sat.run(MINUTE, async |app, board| {
+        let fpga = async {
+            firmware::sim::node::fpga_play(board, &log, period).await;
+            // Let the last frames through before the scenario ends.
+            Timer::after(Duration::from_millis(200)).await;
+        };
+        let ground_side = async {
+            Timer::after(Duration::from_millis(500)).await;
+            let (commit, upload) = cmds.split_last().unwrap();
+            for (tag, cmd) in upload.iter().cloned() {
+                assert_eq!(ground.transact(board, tag, cmd).await.result, Ok(()));
+            }
+            // Commit, and a Ping 10 ms later, inside the erase stall (≥ 500 ms).
+            ground.send(board, 21, commit.1.clone());
+            Timer::after(Duration::from_millis(10)).await;
+            ground.send(board, 22, Command::Ping);
+            while ground.acks().iter().filter(|a| a.tag >= 21).count() < 2 {
+                Timer::after(Duration::from_millis(5)).await;
+                ground.receive(board);
+            }
+            let commit_ack = ground.acks().into_iter().find(|a| a.tag == 21).unwrap();
+            assert_eq!(commit_ack.result, Ok(()));
+            let ping = ground.acks().into_iter().find(|a| a.tag == 22).unwrap();
+            (app.counters().cal_stores == 1, ping)
+        };
+        let (_, r) = embassy_futures::join::join(fpga, ground_side).await;
+        ground.receive(board);
+        r
+    });
+    assert!(commit_acked_after_store);
+    assert_eq!(ping_ack.result, Ok(()), "the command sent during the store");
+
+    let h = sat.app.pipeline.try_lock().unwrap().health();
+    let lost = frames_n as u64 - u64::from(h.link.frames);
+    let bound = firmware::layout::store_frames_lost_max(604_800);
+    eprintln!(
+        "store during streaming: {lost} of {frames_n} frames lost (bound {bound}), {} counted as dropped by sequence",
+        h.link.frames_dropped
+    );
+    assert!(
+        lost > 0 && lost <= bound,
+        "{lost} frames lost, bound {bound}"
+    );
+    assert_eq!(
+        u64::from(h.link.frames_dropped),
+        lost,
+        "every lost frame counted"
+    );
+    // Time runs on across the gap: the last report starts where the log's frames put it (the frame clock counts
+    // the lost frames), within one output interval.
+    let last = ground
+        .telemetry
+        .iter()
+        .rev()
+        .find_map(|t| match t {
+            Telemetry::Fused(f) => Some(*f),
+            _ => None,
+        })
+        .unwrap();
+    let t_end_us =
+        (frames_n as u64 - 1) * 16 * 1_000_000_000 / PipelineConfig::DEFAULT.fpga_base_rate_mhz;
+    let interval_us = 32 * 16 * 1_000_000_000 / PipelineConfig::DEFAULT.fpga_base_rate_mhz;
+    assert!(
+        last.t_us <= t_end_us && t_end_us - last.t_us < 2 * interval_us,
+        "last report at {} µs, last frame at {t_end_us} µs",
+        last.t_us
     );
 }

@@ -116,7 +116,7 @@ fn scratch() -> Vec<u8> {
 }
 
 fn boot(mem: &[u8]) -> shared::storage::Loaded<G> {
-    let mut store = CalStore::new(MockFlash { mem: mem.to_vec(), budget: None, ops: 0 }).unwrap();
+    let mut store = CalStore::new(MockFlash::<ERASE> { mem: mem.to_vec(), budget: None, ops: 0 }).unwrap();
     store.load::<G>(&mut scratch()).expect("load over arbitrary flash")
 }
 
@@ -143,7 +143,7 @@ fn check(input: Input) {
     let new = input.new.table();
 
     // Store with no cut, then reboot.
-    let mut store = CalStore::new(MockFlash { mem: mem.clone(), budget: None, ops: 0 }).unwrap();
+    let mut store = CalStore::new(MockFlash::<ERASE> { mem: mem.clone(), budget: None, ops: 0 }).unwrap();
     let seq = store.store(&new, &mut scratch()).expect("store on a healthy flash");
     let flash = store.into_inner();
     let total_ops = flash.ops;
@@ -159,7 +159,7 @@ fn check(input: Input) {
 
     // A power cut after `cut` operations: old or new, never anything else.
     let budget = usize::from(input.cut) % total_ops.max(1);
-    let mut store = CalStore::new(MockFlash { mem: mem.clone(), budget: Some(budget), ops: 0 }).unwrap();
+    let mut store = CalStore::new(MockFlash::<ERASE> { mem: mem.clone(), budget: Some(budget), ops: 0 }).unwrap();
     let result = store.store(&new, &mut scratch());
     assert_eq!(result, Err(StoreError::Flash(MockError::PowerCut)), "cut after {budget} of {total_ops}");
     let flash = store.into_inner();

@@ -110,7 +110,8 @@ impl Sink {
         match o {
             Output::Telemetry(t) => self.telemetry(t),
             Output::Fpga(c) => self.out.fpga.push(c),
-            Output::PersistCalibration => {}
+            // Replay sends no commands, so no upload is ever committed.
+            Output::PersistCalibration { .. } => {}
         }
     }
 

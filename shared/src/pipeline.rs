@@ -94,8 +94,13 @@ pub enum Output {
     Telemetry(Telemetry),
     /// Send to the FPGA.
     Fpga(FpgaControl),
-    /// Store [`Pipeline::calibration`] in non-volatile memory (after an upload was committed).
-    PersistCalibration,
+    /// Store [`Pipeline::calibration`] in non-volatile memory (an upload was committed, and is in force), then
+    /// call [`Pipeline::calibration_persisted`] with the outcome: the commit's ack (tag `tag`) waits for it, so the
+    /// ground hears "Ok" only once the table survives a reset.
+    PersistCalibration {
+        /// The `CalCommit`'s tag.
+        tag: u16,
+    },
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -375,19 +380,41 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// Handles one command message (the payload of a bus packet); the ack (and any data) follow in `poll`.
     pub fn handle_command(&mut self, bytes: &[u8]) {
         let tag = peek_tag(bytes);
+        let mut commit = false;
         let result = match decode::<CommandEnvelope>(bytes) {
             Err(DecodeError::Version(v)) => Err(Reject::Version(v)),
             Err(_) => Err(Reject::Malformed),
-            Ok(env) => self.execute(env.cmd),
+            Ok(env) => {
+                commit = matches!(env.cmd, Command::CalCommit);
+                self.execute(env.cmd)
+            }
         };
-        let i = usize::from(result.is_err());
-        if let Some(c) = self.commands.get_mut(i) {
-            *c = c.wrapping_add(1);
+        if commit && result.is_ok() {
+            // The ack waits for the store (`calibration_persisted`).
+            self.push(Output::PersistCalibration { tag });
+            return;
         }
+        self.count_command(&result);
         // The ack goes ahead of any data the command produced.
         let ack = Output::Telemetry(Telemetry::Ack(Ack { tag, result }));
         if self.outbox.push_front(ack).is_err() {
             self.telemetry_dropped = self.telemetry_dropped.wrapping_add(1);
+        }
+    }
+
+    /// The outcome of the store that [`Output::PersistCalibration`] asked for; returns the `CalCommit`'s ack
+    /// (`Reject::Storage` when the store failed: the table stays in force until the next reset, which will not
+    /// find it), for the platform to send.
+    pub fn calibration_persisted(&mut self, tag: u16, stored: bool) -> Ack {
+        let result = if stored { Ok(()) } else { Err(Reject::Storage) };
+        self.count_command(&result);
+        Ack { tag, result }
+    }
+
+    fn count_command(&mut self, result: &Result<(), Reject>) {
+        let i = usize::from(result.is_err());
+        if let Some(c) = self.commands.get_mut(i) {
+            *c = c.wrapping_add(1);
         }
     }
 
@@ -603,7 +630,6 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 let table = CalibrationTable::decode(bytes).map_err(Reject::Cal)?;
                 self.upload.active = false;
                 self.load_calibration(table, CalSource::Uploaded);
-                self.push(Output::PersistCalibration);
             }
             Command::AllanRequest { first, count } => {
                 let end = usize::from(first)

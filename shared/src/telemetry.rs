@@ -137,6 +137,8 @@ pub enum Reject {
     CalIncomplete,
     /// The uploaded table is invalid.
     Cal(CalError),
+    /// The committed table is in force but could not be stored (written and read back): a reset loses it.
+    Storage,
 }
 
 /// Answer to every command.

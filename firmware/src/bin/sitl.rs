@@ -18,17 +18,16 @@ use clap::Parser;
 use embassy_futures::select::{Either3, select3};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
-use embassy_time::{Duration, Instant, Timer};
+use embassy_time::Duration;
 use firmware::app::{self, App};
 use firmware::sim::clock::{self, Mode};
-use firmware::sim::flash::FileFlash;
+use firmware::sim::flash::{FileFlash, Stalling};
 use firmware::sim::node::{self, Board};
 use shared::bus::BusConfig;
 use shared::bus::csp::CspVersion;
 use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
 use shared::storage::CalStore;
 use shared::wire::FrameDecoder;
-use shared::wire::frame::FRAME_LEN;
 
 /// Runs the firmware's tasks on the PC against a frame log and a serial bus.
 #[derive(Parser, Debug)]
@@ -105,7 +104,8 @@ fn run(args: &Args) -> Result<(), String> {
 
     let config = PipelineConfig::DEFAULT;
     let mut pipeline = Pipeline::new(config, Box::new(AllanBank::new()));
-    let mut store = CalStore::new(flash).map_err(|e| format!("flash geometry: {e:?}"))?;
+    // Erases and programs stall the tasks for the F405's worst-case times, as on the MCU.
+    let mut store = CalStore::new(Stalling(flash)).map_err(|e| format!("flash geometry: {e:?}"))?;
     app::load_calibration(&mut store, &mut pipeline);
     let bus_config = BusConfig {
         version,
@@ -169,13 +169,9 @@ async fn feed(board: &Board, frames: &[u8], fast: bool, base_rate_mhz: u64) {
         let n = FrameDecoder::new()
             .decode(&mut probe)
             .map_or(15, |d| d.frame.decimation);
-        // Frame period in µs ticks: (N + 1) / base rate.
+        // Frame period: (N + 1) / base rate.
         let period_us = (u64::from(n) + 1) * 1_000_000_000 / base_rate_mhz.max(1);
-        let t0 = Instant::now();
-        for (k, chunk) in frames.chunks(FRAME_LEN).enumerate() {
-            Timer::at(t0 + Duration::from_micros(k as u64 * period_us)).await;
-            board.fpga_rx.push(chunk);
-        }
+        node::fpga_play(board, frames, Duration::from_micros(period_us)).await;
     }
     log::info!("sitl: frame log ended; the FPGA link is silent now");
     core::future::pending::<()>().await

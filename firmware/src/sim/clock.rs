@@ -185,6 +185,23 @@ fn run_inner<F: Future>(limit: u64, fut: F) -> Result<F::Output, RunError> {
     }
 }
 
+/// The CPU stalls for `d` without running any task: what a flash erase or program does on the single-bank F405
+/// (every fetch from flash waits). In virtual time the clock jumps by `d`; in real time the thread sleeps. Timers
+/// that expired meanwhile fire late, and whatever the world sent meanwhile piles up in the lines, as on the MCU.
+pub fn stall(d: embassy_time::Duration) {
+    let mode = CLOCK.with(|c| match c.borrow_mut().as_mut() {
+        Some(clock) if clock.mode == Mode::Virtual => {
+            clock.virtual_ticks = clock.virtual_ticks.saturating_add(d.as_ticks());
+            None
+        }
+        Some(clock) => Some(clock.mode),
+        None => None,
+    });
+    if mode == Some(Mode::Real) {
+        thread::sleep(core::time::Duration::from_micros(d.as_micros()));
+    }
+}
+
 /// Completes once every task of the current run is blocked (waiting for I/O or a timer), before time moves on.
 pub async fn settle() {
     let start = EPOCH.get();

@@ -15,7 +15,10 @@ use embedded_storage::nor_flash::{
 pub use shared::storage::mock::MockError;
 use shared::storage::mock::MockFlash;
 
-use crate::layout::{CAL_SECTOR_LEN, CAL_SECTORS, FLASH_WRITE_LEN};
+use super::clock;
+use crate::layout::{
+    CAL_SECTOR_LEN, CAL_SECTORS, ERASE_SECTOR_US, FLASH_WRITE_LEN, PROGRAM_WORD_US,
+};
 
 /// The calibration sectors as a RAM model.
 pub type CalFlashModel = MockFlash<CAL_SECTOR_LEN>;
@@ -115,5 +118,42 @@ impl NorFlash for FileFlash {
             .map_err(SimFlashError::Model);
         self.mirror(offset as usize, offset as usize + bytes.len())?;
         r
+    }
+}
+
+/// A flash whose erases and programs stall the CPU for the F405's worst-case times ([`crate::layout`]), through
+/// [`crate::sim::clock::stall`]: the host-run tasks then lose frames to a calibration store as the MCU does.
+pub struct Stalling<F>(pub F);
+
+impl<F: ErrorType> ErrorType for Stalling<F> {
+    type Error = F::Error;
+}
+
+impl<F: ReadNorFlash> ReadNorFlash for Stalling<F> {
+    const READ_SIZE: usize = F::READ_SIZE;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), F::Error> {
+        self.0.read(offset, bytes)
+    }
+    fn capacity(&self) -> usize {
+        self.0.capacity()
+    }
+}
+
+impl<F: NorFlash> NorFlash for Stalling<F> {
+    const WRITE_SIZE: usize = F::WRITE_SIZE;
+    const ERASE_SIZE: usize = F::ERASE_SIZE;
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), F::Error> {
+        let sectors = u64::from(to.saturating_sub(from)).div_ceil(F::ERASE_SIZE as u64);
+        clock::stall(embassy_time::Duration::from_micros(
+            sectors * u64::from(ERASE_SECTOR_US[1]),
+        ));
+        self.0.erase(from, to)
+    }
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), F::Error> {
+        let words = bytes.len().div_ceil(4) as u64;
+        clock::stall(embassy_time::Duration::from_micros(
+            words * u64::from(PROGRAM_WORD_US[1]),
+        ));
+        self.0.write(offset, bytes)
     }
 }

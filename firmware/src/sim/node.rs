@@ -5,21 +5,36 @@
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use embassy_futures::join::{join, join4};
-use embassy_time::Duration;
+use embassy_time::{Duration, Instant, Timer};
 use embedded_storage::nor_flash::NorFlash;
 use shared::pipeline::AllanBank;
 use shared::storage::CalStore;
+use shared::wire::frame::FRAME_LEN;
 
 use super::NoPin;
 use super::line::Line;
 use crate::app::{self, App};
-use crate::layout::{BUS_BAUD, FPGA_RX_RING_LEN};
+use crate::layout::{BUS_BAUD, BUS_RX_RING_LEN, FPGA_RX_RING_LEN};
 use crate::log::Loggable;
 
 /// How often the watchdog loop checks progress (as `main.rs`).
 pub const WATCHDOG_PERIOD: Duration = Duration::from_millis(250);
-/// Bus receive buffer, bytes (as `board.rs`).
-pub const BUS_RX_BUF_LEN: usize = 512;
+
+/// The FPGA sending `log` frame by frame, frame k at `period`·k from now, whether or not the firmware runs: after a
+/// CPU stall ([`super::clock::stall`]) every frame that came due meanwhile arrives at once, and what the ring cannot
+/// hold is lost, as on the MCU. Returns when the log is sent.
+pub async fn fpga_play(board: &Board, log: &[u8], period: Duration) {
+    let t0 = Instant::now();
+    let due = |k: usize| t0 + period * u32::try_from(k).unwrap_or(u32::MAX);
+    let mut frames = log.chunks(FRAME_LEN).enumerate().peekable();
+    while let Some(&(k, _)) = frames.peek() {
+        Timer::at(due(k)).await;
+        let now = Instant::now();
+        while let Some((_, f)) = frames.next_if(|&(k, _)| due(k) <= now) {
+            board.fpga_rx.push(f);
+        }
+    }
+}
 
 /// The edges of the board.
 pub struct Board {
@@ -27,7 +42,7 @@ pub struct Board {
     pub fpga_rx: Line,
     /// MCU → FPGA: control messages.
     pub fpga_tx: Line,
-    /// Ground → MCU: the bus receiver's buffer.
+    /// Ground → MCU: the DMA ring of USART2.
     pub bus_rx: Line,
     /// MCU → ground: what the bus transmitter has put on the wire.
     pub bus_tx: Line,
@@ -48,7 +63,7 @@ impl Board {
         Self {
             fpga_rx: Line::new(FPGA_RX_RING_LEN),
             fpga_tx: Line::new(1 << 16),
-            bus_rx: Line::new(BUS_RX_BUF_LEN),
+            bus_rx: Line::new(BUS_RX_RING_LEN),
             bus_tx: Line::new(1 << 20),
             bus_baud,
             watchdog_feeds: AtomicU32::new(0),

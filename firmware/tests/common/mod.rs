@@ -15,7 +15,7 @@ use embassy_futures::select::{Either, select};
 use embassy_time::Duration;
 use firmware::app::{self, App};
 use firmware::sim::clock::{self, Mode};
-use firmware::sim::flash::{self as simflash, CalFlashModel};
+use firmware::sim::flash::{self as simflash, CalFlashModel, Stalling};
 use firmware::sim::node::{self, Board};
 use shared::bus::csp::{CspHeader, CspPacket};
 use shared::bus::kiss::KissDecoder;
@@ -36,7 +36,8 @@ pub type HostApp = App<Box<AllanBank>>;
 pub struct Sat {
     pub app: HostApp,
     pub board: Board,
-    pub store: CalStore<CalFlashModel>,
+    /// The calibration flash, stalling the CPU as the F405's does.
+    pub store: CalStore<Stalling<CalFlashModel>>,
 }
 
 impl Sat {
@@ -48,7 +49,7 @@ impl Sat {
     /// As [`Self::boot`], with a pipeline configuration.
     pub fn boot_with(flash: CalFlashModel, bus_baud: Option<u32>, config: PipelineConfig) -> Self {
         let mut pipeline = Pipeline::new(config, Box::new(AllanBank::new()));
-        let mut store = CalStore::new(flash).expect("flash geometry");
+        let mut store = CalStore::new(Stalling(flash)).expect("flash geometry");
         app::load_calibration(&mut store, &mut pipeline);
         Self {
             app: App::new(pipeline, BusConfig::DEFAULT),
@@ -78,7 +79,7 @@ impl Sat {
 
     /// The flash as it is now (the store gives it back).
     pub fn into_flash(self) -> CalFlashModel {
-        self.store.into_inner()
+        self.store.into_inner().0
     }
 }
 

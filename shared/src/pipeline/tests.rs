@@ -408,12 +408,39 @@ fn calibration_upload_in_chunks() {
     );
     assert_eq!(p.calibration_source(), CalSource::Factory);
 
+    // A good commit: the table is in force at once, but the ack waits for the platform's store.
+    let commands_before = p.health().commands;
     let out = upload(&mut p, &bytes, crc32c(&bytes));
-    assert_eq!(ack(&out).result, Ok(()));
-    assert_eq!(out[1], Output::PersistCalibration);
+    assert_eq!(out, [Output::PersistCalibration { tag: 12 }]);
     assert_eq!(p.calibration(), &table);
     let h = p.health();
     assert_eq!((h.cal_id, h.cal_source), (42, CalSource::Uploaded));
+    // Begin and chunks counted, the commit not yet.
+    let begin_and_chunks = 1 + bytes.len().div_ceil(CAL_CHUNK_MAX) as u32;
+    assert_eq!(
+        h.commands,
+        [commands_before[0] + begin_and_chunks, commands_before[1]],
+        "the commit is counted once the store is done"
+    );
+    assert_eq!(
+        p.calibration_persisted(12, true),
+        Ack {
+            tag: 12,
+            result: Ok(())
+        }
+    );
+    assert_eq!(
+        p.calibration_persisted(12, false).result,
+        Err(Reject::Storage)
+    );
+    let h = p.health();
+    assert_eq!(
+        h.commands,
+        [
+            commands_before[0] + begin_and_chunks + 1,
+            commands_before[1] + 1
+        ]
+    );
 }
 
 #[test]

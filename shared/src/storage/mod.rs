@@ -75,6 +75,8 @@ pub enum StoreError<E> {
     Encode,
     /// The flash driver failed.
     Flash(E),
+    /// The record read back is not the one written (the flash did not take it).
+    Verify,
 }
 
 /// The outcome of [`CalStore::load`].
@@ -282,7 +284,12 @@ impl<F: NorFlash> CalStore<F> {
             at = at.wrapping_add(chunk.len() as u32);
         }
         self.flash.write(base, head).map_err(StoreError::Flash)?;
-        Ok(seq)
+        // Read back: the slot must load as the record written, or the caller is not told the table is safe.
+        match self.read_table::<G>(target, scratch) {
+            Ok((SlotState::Valid(s), Some(t))) if s == seq && t == *table => Ok(seq),
+            Ok(_) => Err(StoreError::Verify),
+            Err(e) => Err(StoreError::Flash(e)),
+        }
     }
 }
 

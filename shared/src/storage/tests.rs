@@ -411,3 +411,70 @@ proptest::proptest! {
         proptest::prop_assert!(l.slots.iter().all(|s| !matches!(s, SlotState::Valid(_))));
     }
 }
+
+/// A flash that reports success for a write it did not do (one word, at `lost`): the store must not say the
+/// table is safe.
+struct DropsAWrite {
+    inner: MockFlash,
+    lost: u32,
+}
+
+impl ErrorType for DropsAWrite {
+    type Error = MockError;
+}
+
+impl ReadNorFlash for DropsAWrite {
+    const READ_SIZE: usize = 1;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), MockError> {
+        self.inner.read(offset, bytes)
+    }
+    fn capacity(&self) -> usize {
+        self.inner.capacity()
+    }
+}
+
+impl NorFlash for DropsAWrite {
+    const WRITE_SIZE: usize = 4;
+    const ERASE_SIZE: usize = ERASE;
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), MockError> {
+        self.inner.erase(from, to)
+    }
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), MockError> {
+        let end = offset + bytes.len() as u32;
+        if (offset..end).contains(&self.lost) {
+            // Everything but the lost word.
+            let k = (self.lost - offset) as usize & !3;
+            if k > 0 {
+                self.inner.write(offset, &bytes[..k])?;
+            }
+            if k + 4 < bytes.len() {
+                self.inner.write(offset + k as u32 + 4, &bytes[k + 4..])?;
+            }
+            return Ok(());
+        }
+        self.inner.write(offset, bytes)
+    }
+}
+
+#[test]
+fn a_write_the_flash_did_not_do_is_caught_by_the_read_back() {
+    for lost in [4u32, 12, 40, 400] {
+        let mut store = CalStore::new(DropsAWrite {
+            inner: new_flash(),
+            lost,
+        })
+        .unwrap();
+        assert_eq!(
+            store.store(&table(7), &mut scratch()),
+            Err(StoreError::Verify),
+            "word at {lost} lost"
+        );
+    }
+    // And with nothing lost (the word is beyond the record), the store succeeds.
+    let mut store = CalStore::new(DropsAWrite {
+        inner: new_flash(),
+        lost: (ERASE * SLOT_BLOCKS - 4) as u32,
+    })
+    .unwrap();
+    assert_eq!(store.store(&table(7), &mut scratch()), Ok(1));
+}
