@@ -268,7 +268,9 @@ where
         };
         let mut input = buf.get(..n).unwrap_or(&[]);
         let mut p = app.pipeline.lock().await;
-        p.set_uptime_ms(Instant::now().as_millis());
+        let now = Instant::now();
+        p.set_uptime_ms(now.as_millis());
+        p.set_arrival_us(now.as_micros());
         while !input.is_empty() {
             p.push_link(&mut input);
             app.route_all(&mut p);

@@ -526,3 +526,45 @@ fn a_store_during_streaming_loses_at_most_the_documented_frames_and_no_command()
         last.t_us
     );
 }
+
+/// An FPGA restart (its sequence counter starts again at 0) after 10 s of silence: the outage stays on the time
+/// line of the reports — the link task stamps each read with its arrival time (`Pipeline::set_arrival_us`).
+#[test]
+fn an_fpga_restart_keeps_the_outage_on_the_time_line() {
+    let log = frames(605); // 1 s
+    let mut sat = Sat::fresh();
+    let mut ground = Ground::new();
+    let period = frame_period();
+    sat.run(MINUTE, async |_, board| {
+        firmware::sim::node::fpga_play(board, &log, period).await;
+        Timer::after(Duration::from_secs(10)).await;
+        firmware::sim::node::fpga_play(board, &log, period).await;
+        Timer::after(Duration::from_millis(100)).await;
+        ground.receive(board);
+    });
+    let p = sat.app.pipeline.try_lock().unwrap();
+    assert_eq!(p.time_gaps(), 1);
+    assert_eq!(p.link_counters().seq_restarts, 1);
+    let last = ground
+        .telemetry
+        .iter()
+        .rev()
+        .find_map(|t| match t {
+            Telemetry::Fused(f) => Some(*f),
+            _ => None,
+        })
+        .unwrap();
+    // The second run's frame k is at 1 s + 10 s + k periods (its first frame one period after the 10 s wait).
+    let period_us = period.as_micros() as f64;
+    let second_start_us = 605.0 * period_us + 10.0e6;
+    let frames_into_second = (605 / 32 * 32) as f64; // the run's last full report starts before its end
+    let expected_us = second_start_us + (frames_into_second - 32.0) * period_us;
+    let off_frames = (last.t_us as f64 - expected_us) / period_us;
+    eprintln!(
+        "FPGA restart: last report at {:.3} s, expected {:.3} s ({off_frames:+.1} frames)",
+        last.t_us as f64 / 1e6,
+        expected_us / 1e6
+    );
+    // Within one 1 KiB read (≈ 4 frames) of the truth.
+    assert!(off_frames.abs() <= 5.0, "{off_frames} frames off");
+}

@@ -60,6 +60,12 @@ pub struct PipelineConfig {
     /// Line rate of the FPGA link, bit/s (8N1: 10 bits per byte). `SetDecimation` is refused when the frame
     /// stream it asks for would not fit: (base rate / (N + 1)) · `FRAME_LEN` · 10 > this.
     pub link_bit_rate: u32,
+    /// Frames the platform may hold between their arrival and the read whose time it gives to
+    /// [`Pipeline::set_arrival_us`] (its receive ring and read chunk; the firmware: 8 KiB ring ≈ 35 frames + a
+    /// 1 KiB read ≈ 5). An arrival gap that implies more lost frames than the sequence counter by more than this
+    /// is an outage the counter cannot see (an FPGA restart, or a silence of 2¹⁶ frames or more): time then
+    /// advances by the arrival gap.
+    pub arrival_slack_frames: u16,
     /// Fusion parameters.
     pub fusion: FusionConfig,
 }
@@ -71,6 +77,7 @@ impl PipelineConfig {
         frames_per_output: 32,
         health_every: 19,
         link_bit_rate: 2_000_000,
+        arrival_slack_frames: 40,
         fusion: FusionConfig::DEFAULT,
     };
 
@@ -252,6 +259,9 @@ pub struct Pipeline<B> {
     cursor: Cursor,
     upload: Upload,
     uptime_ms: u64,
+    arrival_us: Option<u64>,
+    last_arrival_us: Option<u64>,
+    time_gaps: u32,
     invalid_frames: u32,
     telemetry_dropped: u32,
     commands: [u32; 2],
@@ -295,6 +305,9 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 active: false,
             },
             uptime_ms: 0,
+            arrival_us: None,
+            last_arrival_us: None,
+            time_gaps: 0,
             invalid_frames: 0,
             telemetry_dropped: 0,
             commands: [0; 2],
@@ -333,6 +346,19 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// `telemetry_dropped`, with the pipeline's own outbox overflows.
     pub fn note_telemetry_dropped(&mut self, n: u32) {
         self.telemetry_dropped = self.telemetry_dropped.wrapping_add(n);
+    }
+
+    /// The platform's monotonic time, µs, at which the bytes about to be pushed were read. With it, an outage the
+    /// frame sequence counter cannot measure (see [`PipelineConfig::arrival_slack_frames`]) stays on the time line:
+    /// the frame clock advances by the arrival gap, and [`Self::time_gaps`] counts it. Without it (replay of a
+    /// log), time comes from the counter alone.
+    pub fn set_arrival_us(&mut self, us: u64) {
+        self.arrival_us = Some(us);
+    }
+
+    /// Outages bridged by arrival time (see [`Self::set_arrival_us`]).
+    pub fn time_gaps(&self) -> u32 {
+        self.time_gaps
     }
 
     /// Sets the uptime reported in health (the platform's clock).
@@ -508,9 +534,40 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         self.avg = Averager::NEW;
     }
 
+    /// Frames lost before `d`: the sequence counter's count, or the arrival gap's when that is larger by more than
+    /// the platform's slack (an outage the 16-bit counter cannot see).
+    fn missing_before(&mut self, d: &Decoded) -> u32 {
+        let by_seq = d.missing_before;
+        let (now, last) = (self.arrival_us, self.last_arrival_us);
+        self.last_arrival_us = now;
+        let (Some(now), Some(last), Some(n)) = (now, last, self.clock.decimation()) else {
+            return by_seq;
+        };
+        if n != d.frame.decimation {
+            return by_seq; // a new rate: the clock restarts its statistics and ignores gaps anyway
+        }
+        // Frame period in ns: (N + 1) · 10¹² / base rate in mHz, ≥ 1 (a rate of 0 counts as 1 mHz). In u128 nothing
+        // can wrap: the gap is < 2⁶⁴ µs, the period < 2¹⁶ · 10¹².
+        let period_ns = (u128::from(n)
+            .wrapping_add(1)
+            .wrapping_mul(1_000_000_000_000)
+            / u128::from(self.config.fpga_base_rate_mhz.max(1)))
+        .max(1);
+        let gap_ns = u128::from(now.saturating_sub(last)).wrapping_mul(1000);
+        let frames = gap_ns.wrapping_add(period_ns / 2) / period_ns;
+        let by_time = u32::try_from(frames.saturating_sub(1)).unwrap_or(u32::MAX);
+        if by_time > by_seq.saturating_add(u32::from(self.config.arrival_slack_frames)) {
+            self.time_gaps = self.time_gaps.wrapping_add(1);
+            by_time
+        } else {
+            by_seq
+        }
+    }
+
     fn process(&mut self, d: &Decoded) {
         let f = &d.frame;
-        let tick = self.clock.advance(d);
+        let missing = self.missing_before(d);
+        let tick = self.clock.advance_by(f.decimation, missing);
         if tick.rate_changed {
             self.restart_statistics();
         }

@@ -520,3 +520,77 @@ mod no_panic {
         }
     }
 }
+
+/// With arrival times, outages the 16-bit sequence counter cannot measure stay on the time line: an FPGA restart
+/// (the counter starts again at 0) and a silence of more than 2¹⁶ frames (the counter wraps). Ordinary arrival
+/// jitter and a buffered backlog within the slack change nothing.
+#[test]
+fn arrival_times_keep_outages_the_sequence_counter_cannot_see() {
+    // Frame period at N = 15: 16 / 9676.8 Hz = 1653.44 µs; output interval 32 frames.
+    let period_ns = 16.0e12 / 9_676_800.0;
+    let mut rng = Rng::new(9);
+    let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
+    let mut outputs = Vec::new();
+    // Frame k (sequence `seq`) arrives at its true time plus a read delay, in reads of 4 frames.
+    let push =
+        |p: &mut HostPipeline, true_k: u64, seq: u16, outputs: &mut Vec<Output>, rng: &mut Rng| {
+            let read_at_us = ((true_k / 4 * 4 + 4) as f64 * period_ns / 1000.0) as u64 + 300;
+            p.set_arrival_us(read_at_us);
+            let f = frame(seq, 15, [0.0; 3], [0.0, 0.0, -1.0], 20.0, rng);
+            outputs.extend(run(p, &f.to_bytes()));
+        };
+    for k in 0..640u64 {
+        push(&mut p, k, k as u16, &mut outputs, &mut rng);
+    }
+    assert_eq!(
+        p.time_gaps(),
+        0,
+        "jitter of a 4-frame read is not an outage"
+    );
+    // A backlog: 20 frames read at once, 36 frame periods after the previous read (within the 40-frame slack).
+    for k in 640..660u64 {
+        p.set_arrival_us(((644 + 36) as f64 * period_ns / 1000.0) as u64 + 300);
+        let f = frame(k as u16, 15, [0.0; 3], [0.0, 0.0, -1.0], 20.0, &mut rng);
+        outputs.extend(run(&mut p, &f.to_bytes()));
+    }
+    for k in 660..704u64 {
+        push(&mut p, k, k as u16, &mut outputs, &mut rng);
+    }
+    assert_eq!(
+        p.time_gaps(),
+        0,
+        "a backlog within the slack is not an outage"
+    );
+    // FPGA restart after 10 s of silence: the counter starts at 0 again.
+    let restart_k = 704 + (10.0e9 / period_ns) as u64;
+    for j in 0..320u64 {
+        push(&mut p, restart_k + j, j as u16, &mut outputs, &mut rng);
+    }
+    assert_eq!(p.time_gaps(), 1);
+    // A silence of 70 000 frames (116 s) with the FPGA running: the counter wrapped and shows 70 000 − 65 536.
+    let wrap_k = restart_k + 320 + 70_000;
+    for j in 0..320u64 {
+        push(
+            &mut p,
+            wrap_k + j,
+            ((320 + 70_000 + j) % 65_536) as u16,
+            &mut outputs,
+            &mut rng,
+        );
+    }
+    assert_eq!(p.time_gaps(), 2);
+    // The last report starts at its first frame's true time, within the read granularity (4 frames) per bridged
+    // outage.
+    let last = *fused(&outputs).last().unwrap();
+    let first_k_of_last = wrap_k + 320 - 32;
+    let true_us = first_k_of_last as f64 * period_ns / 1000.0;
+    let err_frames = (last.t_us as f64 - true_us).abs() / (period_ns / 1000.0);
+    assert!(
+        err_frames <= 8.0,
+        "last report {} µs, true {true_us:.0} µs ({err_frames:.1} frames off)",
+        last.t_us
+    );
+    // By the frames and the wrapped counter alone the stream spans ≈ 9.6 s (1 344 frames received, 4 464 seen
+    // missing); with the two outages it spans ≈ 128 s.
+    assert!(last.t_us > 125_000_000, "{}", last.t_us);
+}

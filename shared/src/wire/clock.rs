@@ -41,19 +41,25 @@ impl FrameClock {
 
     /// Takes the next decoded frame; returns its time.
     pub fn advance(&mut self, d: &Decoded) -> Tick {
+        self.advance_by(d.frame.decimation, d.missing_before)
+    }
+
+    /// Takes the next frame, of decimation `decimation`, after `missing_before` lost frames (the decoder's count,
+    /// or the platform's from arrival times); returns its time.
+    pub fn advance_by(&mut self, decimation: u16, missing_before: u32) -> Tick {
         // ≤ 2¹⁶: cannot wrap.
-        let step = u64::from(d.frame.decimation).wrapping_add(1);
+        let step = u64::from(decimation).wrapping_add(1);
         let rate_changed = match self.decimation {
-            Some(n) if n == d.frame.decimation => {
+            Some(n) if n == decimation => {
                 // The product is < 2³² · 2¹⁶ (cannot wrap); the sum wraps modulo 2⁶⁴ (module docs).
-                let lost = u64::from(d.missing_before).wrapping_mul(step);
+                let lost = u64::from(missing_before).wrapping_mul(step);
                 self.base_ticks = self.base_ticks.wrapping_add(lost);
                 false
             }
             Some(_) => true,
             None => false,
         };
-        self.decimation = Some(d.frame.decimation);
+        self.decimation = Some(decimation);
         let tick = Tick {
             base_ticks: self.base_ticks,
             rate_changed,
