@@ -3,9 +3,33 @@
 use std::env;
 use std::fs;
 use std::path::PathBuf;
+use std::process::Command;
+
+/// `FW_COMMIT` (the first 8 hex digits of the git commit, "0" outside git) and `FW_DIRTY` ("1" when tracked files
+/// differ from it), for the firmware's housekeeping report.
+fn firmware_version() {
+    let git = |args: &[&str]| {
+        Command::new("git")
+            .args(args)
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+    };
+    let commit = git(&["rev-parse", "--short=8", "HEAD"]).unwrap_or_else(|| "0".into());
+    let dirty =
+        git(&["status", "--porcelain", "--untracked-files=no"]).is_some_and(|s| !s.is_empty());
+    println!("cargo:rustc-env=FW_COMMIT={commit}");
+    println!("cargo:rustc-env=FW_DIRTY={}", u8::from(dirty));
+    if let Some(dir) = git(&["rev-parse", "--git-dir"]) {
+        println!("cargo:rerun-if-changed={dir}/HEAD");
+        println!("cargo:rerun-if-changed={dir}/index");
+    }
+}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("cargo:rerun-if-changed=build.rs");
+    firmware_version();
     if env::var("CARGO_CFG_TARGET_OS").as_deref() != Ok("none") {
         return Ok(());
     }

@@ -19,10 +19,12 @@
 //! frame (`SetOutputRate(1)`, 604.8 /s) ≈ 37 kB/s, of which two thirds are dropped. Acks and ping replies have
 //! their own queue, which the bus receiver waits on, so they are never dropped: a command is answered exactly once.
 
+use core::cell::Cell;
 use core::num::NonZeroU64;
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use embassy_futures::select::{Either, select};
+use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_sync::mutex::Mutex;
@@ -32,11 +34,14 @@ use embedded_hal::digital::OutputPin;
 use embedded_io_async::{Read, Write};
 use embedded_storage::nor_flash::NorFlash;
 use shared::bus::csp::CspHeader;
-use shared::bus::{BusConfig, BusEvent, BusNode, MAX_PAYLOAD, MAX_WIRE_FRAME};
+use shared::bus::{BusConfig, BusCounters, BusEvent, BusNode, MAX_PAYLOAD, MAX_WIRE_FRAME};
 use shared::calib::encoded_len_max;
 use shared::pipeline::{AllanBank, Output, Pipeline};
 use shared::storage::CalStore;
-use shared::telemetry::{CalSource, MAX_MESSAGE_LEN, Telemetry, encode};
+use shared::telemetry::{
+    CalSource, FaultRecord, HousekeepingReport, MAX_MESSAGE_LEN, RxErrorCounts, StoreOutcome,
+    Telemetry, encode,
+};
 use shared::wire::FpgaControl;
 use shared::wire::frame::GROUPS;
 
@@ -54,8 +59,9 @@ pub const CAL_SCRATCH: usize = encoded_len_max(GROUPS) + 16;
 pub const TELEMETRY_QUEUE: usize = 16;
 /// Acks and ping replies queued for the bus.
 pub const REPLY_QUEUE: usize = 4;
-/// Health period while the FPGA link is silent.
-pub const SILENT_HEALTH_PERIOD: Duration = Duration::from_secs(1);
+/// Housekeeping period: a [`HousekeepingReport`] each time, a Health report too while the FPGA link is silent, and
+/// the CRC check of the calibration in RAM.
+pub const HOUSEKEEPING_PERIOD: Duration = Duration::from_secs(1);
 
 /// Something for the bus transmitter.
 #[derive(Clone, Debug)]
@@ -110,8 +116,12 @@ pub struct ShellCounters {
     pub link_line_errors: u32,
     /// FPGA receive errors of any other kind (overruns go to the pipeline's link counters).
     pub link_other_errors: u32,
-    /// Bus receive errors.
-    pub bus_rx_errors: u32,
+    /// Bus receive errors: overrun (UART or DMA ring).
+    pub bus_rx_overruns: u32,
+    /// Bus receive errors: framing, noise or parity.
+    pub bus_rx_line_errors: u32,
+    /// Bus receive errors of any other kind.
+    pub bus_rx_other_errors: u32,
     /// Bus transmit errors.
     pub bus_tx_errors: u32,
     /// FPGA control messages dropped (queue full).
@@ -122,22 +132,58 @@ pub struct ShellCounters {
     pub cal_store_errors: u32,
     /// Health reports sent because the link was silent.
     pub silent_health: u32,
+    /// Housekeeping reports sent.
+    pub housekeeping: u32,
+    /// Times the calibration in RAM failed its CRC check and was reloaded from flash.
+    pub cal_ram_repairs: u32,
 }
 
 #[derive(Default)]
-struct AtomicCounters([AtomicU32; 8]);
+struct AtomicCounters([AtomicU32; 12]);
 
 #[derive(Clone, Copy)]
 enum Counter {
     LinkLine = 0,
     LinkOther,
-    BusRx,
+    BusRxOverrun,
+    BusRxLine,
+    BusRxOther,
     BusTx,
     FpgaDropped,
     CalStores,
     CalStoreErrors,
     SilentHealth,
+    Housekeeping,
+    CalRamRepairs,
 }
+
+/// What the board knows at boot, reported in every [`HousekeepingReport`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct BootInfo {
+    /// Reset flags (RCC_CSR bits 25–31, shifted down; see [`HousekeepingReport::reset_flags`]).
+    pub reset_flags: u8,
+    /// The fault recorded before this reset.
+    pub fault: Option<FaultRecord>,
+}
+
+/// A free-running CPU cycle counter (the DWT's on the MCU) and its rate, for the core's load.
+#[derive(Debug, Clone, Copy)]
+pub struct CycleCounter {
+    /// Reads the counter.
+    pub now: fn() -> u32,
+    /// Cycles per second.
+    pub hz: u32,
+}
+
+/// The firmware's git commit (first 8 hex digits as a number; 0 outside git) and whether the tree was dirty, from
+/// `build.rs`.
+pub const FW_COMMIT: (u32, bool) = (
+    match u32::from_str_radix(env!("FW_COMMIT"), 16) {
+        Ok(c) => c,
+        Err(_) => 0,
+    },
+    matches!(env!("FW_DIRTY").as_bytes(), b"1"),
+);
 
 /// Everything the tasks share: the pipeline, the queues between the tasks, progress and counters.
 ///
@@ -152,8 +198,16 @@ pub struct App<B> {
     fpga: Channel<Raw, FpgaControl, 4>,
     /// The tag of a committed upload to store.
     persist: Signal<Raw, u16>,
+    /// The calibration in RAM failed its CRC check: reload it from flash.
+    reload: Signal<Raw, ()>,
     progress: [AtomicU32; 3],
     counters: AtomicCounters,
+    bus_counters: BlockingMutex<Raw, Cell<BusCounters>>,
+    last_store: BlockingMutex<Raw, Cell<StoreOutcome>>,
+    boot: BootInfo,
+    cycles: Option<CycleCounter>,
+    /// Cycles the link task spent processing frames (wrapping).
+    busy_cycles: AtomicU32,
 }
 
 impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
@@ -166,9 +220,27 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
             replies: Channel::new(),
             fpga: Channel::new(),
             persist: Signal::new(),
+            reload: Signal::new(),
             progress: Default::default(),
             counters: AtomicCounters::default(),
+            bus_counters: BlockingMutex::new(Cell::new(BusCounters::default())),
+            last_store: BlockingMutex::new(Cell::new(StoreOutcome::None)),
+            boot: BootInfo::default(),
+            cycles: None,
+            busy_cycles: AtomicU32::new(0),
         }
+    }
+
+    /// With what the board knew at boot (reset flags, a recorded fault).
+    pub fn with_boot(mut self, boot: BootInfo) -> Self {
+        self.boot = boot;
+        self
+    }
+
+    /// With a cycle counter, for the core's load in housekeeping.
+    pub fn with_cycle_counter(mut self, cycles: CycleCounter) -> Self {
+        self.cycles = Some(cycles);
+        self
     }
 
     /// The bus configuration.
@@ -194,12 +266,52 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
         ShellCounters {
             link_line_errors: c(Counter::LinkLine),
             link_other_errors: c(Counter::LinkOther),
-            bus_rx_errors: c(Counter::BusRx),
+            bus_rx_overruns: c(Counter::BusRxOverrun),
+            bus_rx_line_errors: c(Counter::BusRxLine),
+            bus_rx_other_errors: c(Counter::BusRxOther),
             bus_tx_errors: c(Counter::BusTx),
             fpga_ctrl_dropped: c(Counter::FpgaDropped),
             cal_stores: c(Counter::CalStores),
             cal_store_errors: c(Counter::CalStoreErrors),
             silent_health: c(Counter::SilentHealth),
+            housekeeping: c(Counter::Housekeeping),
+            cal_ram_repairs: c(Counter::CalRamRepairs),
+        }
+    }
+
+    /// The housekeeping report now (the pipeline's time gaps and link overruns from `p`; the core's load over the
+    /// period `load`, if measured).
+    fn housekeeping(
+        &self,
+        p: &Pipeline<B>,
+        load: Option<(u16, Option<u32>)>,
+    ) -> HousekeepingReport {
+        let c = self.counters();
+        HousekeepingReport {
+            uptime_ms: Instant::now().as_millis(),
+            fw_commit: FW_COMMIT.0,
+            fw_dirty: FW_COMMIT.1,
+            reset_flags: self.boot.reset_flags,
+            fault: self.boot.fault,
+            core_load_permille: load.map(|l| l.0),
+            core_cycles_per_frame: load.and_then(|l| l.1),
+            link_rx_errors: RxErrorCounts {
+                overrun: p.link_counters().overruns,
+                line: c.link_line_errors,
+                other: c.link_other_errors,
+            },
+            bus_rx_errors: RxErrorCounts {
+                overrun: c.bus_rx_overruns,
+                line: c.bus_rx_line_errors,
+                other: c.bus_rx_other_errors,
+            },
+            bus_tx_errors: c.bus_tx_errors,
+            bus: self.bus_counters.lock(Cell::get),
+            fpga_ctrl_dropped: c.fpga_ctrl_dropped,
+            time_gaps: p.time_gaps(),
+            cal_stores: [c.cal_stores, c.cal_store_errors],
+            last_store: self.last_store.lock(Cell::get),
+            cal_ram_repairs: c.cal_ram_repairs,
         }
     }
 
@@ -268,12 +380,17 @@ where
         };
         let mut input = buf.get(..n).unwrap_or(&[]);
         let mut p = app.pipeline.lock().await;
+        let c0 = app.cycles.map(|c| (c.now)());
         let now = Instant::now();
         p.set_uptime_ms(now.as_millis());
         p.set_arrival_us(now.as_micros());
         while !input.is_empty() {
             p.push_link(&mut input);
             app.route_all(&mut p);
+        }
+        if let (Some(c), Some(c0)) = (app.cycles, c0) {
+            app.busy_cycles
+                .fetch_add((c.now)().wrapping_sub(c0), Ordering::Relaxed);
         }
     }
 }
@@ -284,7 +401,7 @@ pub async fn bus_rx_loop<B, R>(app: &App<B>, rx: &mut R) -> !
 where
     B: core::borrow::BorrowMut<AllanBank>,
     R: Read,
-    R::Error: Loggable,
+    R::Error: ClassifyRxError + Loggable,
 {
     let mut node = BusNode::new(app.bus);
     let mut buf = [0u8; 256];
@@ -294,7 +411,11 @@ where
             Err(_idle) => continue,
             Ok(Ok(n)) => n,
             Ok(Err(e)) => {
-                app.count(Counter::BusRx);
+                app.count(match e.classify() {
+                    RxFault::Overrun => Counter::BusRxOverrun,
+                    RxFault::Line => Counter::BusRxLine,
+                    RxFault::Other => Counter::BusRxOther,
+                });
                 warn!("bus: rx error {:?}", e);
                 continue;
             }
@@ -333,10 +454,7 @@ where
                 }
             }
         }
-        let c = node.counters();
-        if c.kiss_errors != 0 || c.csp_errors != 0 {
-            debug!("bus: {:?}", c);
-        }
+        app.bus_counters.lock(|c| c.set(*node.counters()));
     }
 }
 
@@ -442,23 +560,33 @@ where
 {
     let mut scratch = [0u8; CAL_SCRATCH];
     loop {
-        let tag = app.persist.wait().await;
+        let tag = match select(app.persist.wait(), app.reload.wait()).await {
+            Either::First(tag) => tag,
+            Either::Second(()) => {
+                // The table in RAM failed its CRC: the newest stored one (or the factory default) replaces it.
+                load_calibration(store, &mut *app.pipeline.lock().await);
+                app.count(Counter::CalRamRepairs);
+                continue;
+            }
+        };
         let table = *app.pipeline.lock().await.calibration();
-        let stored = match store.store(&table, &mut scratch) {
+        let outcome = match store.store(&table, &mut scratch) {
             Ok(seq) => {
                 app.count(Counter::CalStores);
                 info!(
                     "calibration: id {:?} stored as record {:?}",
                     table.cal_id, seq
                 );
-                true
+                StoreOutcome::Stored(seq)
             }
             Err(e) => {
                 app.count(Counter::CalStoreErrors);
                 error!("calibration: store failed: {:?}", e);
-                false
+                StoreOutcome::Failed
             }
         };
+        app.last_store.lock(|c| c.set(outcome));
+        let stored = matches!(outcome, StoreOutcome::Stored(_));
         let ack = app.pipeline.lock().await.calibration_persisted(tag, stored);
         app.replies
             .send(BusOut::Telemetry(Telemetry::Ack(ack)))
@@ -497,28 +625,58 @@ pub async fn watchdog_loop<B, L: OutputPin>(
     }
 }
 
-/// Housekeeping: while the FPGA link delivers no frame, a Health report every [`SILENT_HEALTH_PERIOD`] (with
-/// frames, the pipeline sends Health every `health_every` outputs), so that the ground sees a silent FPGA. Every
+/// Housekeeping, every [`HOUSEKEEPING_PERIOD`]: a [`HousekeepingReport`] (boot facts, error counters by kind, the
+/// core's load from the cycle counter, the last calibration store); a Health report while the FPGA link delivers no
+/// frame (with frames, the pipeline sends Health every `health_every` outputs), so that the ground sees a silent
+/// FPGA; the CRC check of the calibration in RAM, which asks the storage task to reload it on a mismatch. Every
 /// `log_every` periods it also logs link counters and a quick-look white-noise level of group 0's gyro x for a
 /// human reading the log: micromath's root (≈ ±6 %), marked "≈", never sent — the ground gets exact variances.
 pub async fn housekeeping_loop<B>(app: &App<B>, log_every: u32) -> !
 where
     B: core::borrow::BorrowMut<AllanBank>,
 {
-    let mut ticker = Ticker::every(SILENT_HEALTH_PERIOD);
+    let mut ticker = Ticker::every(HOUSEKEEPING_PERIOD);
     let mut last_frames = None;
+    let mut last_busy = app.busy_cycles.load(Ordering::Relaxed);
+    let mut last_at = Instant::now();
     let mut n = 0u32;
     loop {
         ticker.next().await;
         let mut p = app.pipeline.lock().await;
         let link = *p.link_counters();
+        let now = Instant::now();
+        p.set_uptime_ms(now.as_millis());
         if last_frames == Some(link.frames) {
-            p.set_uptime_ms(Instant::now().as_millis());
             let h = p.health();
             app.route(&mut p, Output::Telemetry(Telemetry::Health(h)));
             app.count(Counter::SilentHealth);
         }
+        // The core's load over the period, from the cycle counter (if the board has one).
+        let busy = app.busy_cycles.load(Ordering::Relaxed);
+        let load = app.cycles.map(|c| {
+            let cycles = busy.wrapping_sub(last_busy);
+            let period_cycles = now
+                .duration_since(last_at)
+                .as_micros()
+                .saturating_mul(u64::from(c.hz))
+                / 1_000_000;
+            let permille = u64::from(cycles).saturating_mul(1000)
+                / NonZeroU64::new(period_cycles).unwrap_or(NonZeroU64::MIN);
+            let frames = link.frames.wrapping_sub(last_frames.unwrap_or(link.frames));
+            (
+                u16::try_from(permille).unwrap_or(u16::MAX),
+                cycles.checked_div(frames),
+            )
+        });
+        (last_busy, last_at) = (busy, now);
         last_frames = Some(link.frames);
+        let hk = app.housekeeping(&p, load);
+        app.route(&mut p, Output::Telemetry(Telemetry::Housekeeping(hk)));
+        app.count(Counter::Housekeeping);
+        if !p.calibration_intact() {
+            error!("calibration: CRC check of the table in RAM failed; reloading from flash");
+            app.reload.signal(());
+        }
         let var = p.fusion().noise_var(0, shared::calib::GX);
         drop(p);
         n = n.wrapping_add(1);

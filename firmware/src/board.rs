@@ -95,6 +95,19 @@ pub struct Board {
     pub watchdog: Watchdog,
     pub calib: CalibFlash,
     pub led: Led,
+    pub cycles: firmware::app::CycleCounter,
+}
+
+/// SYSCLK, Hz (both clock sources give it: `clock_config`).
+pub const SYSCLK_HZ: u32 = 168_000_000;
+
+/// Reads and clears the reset flags: RCC_CSR bits 25–31 (BOR, PIN, POR, software, IWDG, WWDG, low-power) as bits
+/// 0–6. Call before `init`.
+pub fn take_reset_flags() -> u8 {
+    use embassy_stm32::pac::RCC;
+    let flags = (RCC.csr().read().0 >> 25) as u8;
+    RCC.csr().modify(|w| w.set_rmvf(true));
+    flags
 }
 
 // DMA-visible buffers: SRAM (.bss), never CCM.
@@ -151,6 +164,17 @@ pub fn init() -> Board {
 
     let led = Output::new(p.PC13, Level::High, Speed::Low);
 
+    // The DWT cycle counter, for the core's load (housekeeping). `take` fails only if called twice: then the
+    // counter stays off and reads 0.
+    if let Some(mut cp) = cortex_m::Peripherals::take() {
+        cp.DCB.enable_trace();
+        cp.DWT.enable_cycle_counter();
+    }
+    let cycles = firmware::app::CycleCounter {
+        now: cortex_m::peripheral::DWT::cycle_count,
+        hz: SYSCLK_HZ,
+    };
+
     Board {
         clock,
         fpga_rx,
@@ -160,6 +184,7 @@ pub fn init() -> Board {
         watchdog,
         calib,
         led,
+        cycles,
     }
 }
 

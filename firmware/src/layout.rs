@@ -23,9 +23,10 @@ pub const FPGA_BAUD: u32 = 2_000_000;
 pub const BUS_BAUD: u32 = 115_200;
 /// DMA ring of the FPGA link, bytes: 8 KiB = 41 ms at 2 Mbaud = 34 frames of slack.
 pub const FPGA_RX_RING_LEN: usize = 8 * 1024;
-/// DMA ring of the bus receiver, bytes: 7 KiB = 0.62 s at 115200 baud, longer than the worst flash stall (0.5 s),
-/// so commands arriving during a calibration store wait in the ring (the DMA runs while the CPU is stalled).
-pub const BUS_RX_RING_LEN: usize = 7 * 1024;
+/// DMA ring of the bus receiver, bytes: 6.5 KiB = 0.58 s at 115200 baud, longer than the worst flash stall
+/// (0.5 s), so commands arriving during a calibration store wait in the ring (the DMA runs while the CPU is
+/// stalled). Sized to keep RAM within its 96 KiB budget.
+pub const BUS_RX_RING_LEN: usize = 6656;
 
 /// FPGA frames a calibration store can cost at most, at the default 604.8 frames/s: everything that arrives during
 /// the longest erase stall, plus everything the DMA ring held when embassy's ring-buffered UART, lapped, discards

@@ -23,6 +23,7 @@ macro_rules! log_at {
     }};
 }
 
+#[allow(unused_macros)] // kept beside its siblings for the next debug line
 macro_rules! debug { ($($arg:tt)*) => { log_at!(debug, debug, $($arg)*) }; }
 macro_rules! info { ($($arg:tt)*) => { log_at!(info, info, $($arg)*) }; }
 macro_rules! warn { ($($arg:tt)*) => { log_at!(warn, warn, $($arg)*) }; }

@@ -7,6 +7,7 @@
 #![no_main]
 
 mod board;
+mod fault;
 
 use embassy_executor::Spawner;
 use embassy_time::Duration;
@@ -23,11 +24,13 @@ use panic_probe as _;
 /// The tasks' shared state, as the MCU holds it.
 type FwApp = App<&'static mut AllanBank>;
 
-/// Release builds reset on a panic (after logging it); the core never panics on input, so this is a last resort.
+/// Release builds reset on a panic (after logging it and recording it for the next boot's housekeeping); the core
+/// never panics on input, so this is a last resort.
 #[cfg(not(debug_assertions))]
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     defmt::error!("panic: {}", defmt::Display2Format(info));
+    fault::record(shared::telemetry::FaultKind::Panic, 0, 0);
     cortex_m::peripheral::SCB::sys_reset()
 }
 
@@ -43,15 +46,28 @@ static STORE: StaticCell<CalStore<board::CalibFlash>> = StaticCell::new();
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
+    let boot = app::BootInfo {
+        reset_flags: board::take_reset_flags(),
+        fault: fault::take(),
+    };
     let b = board::init();
-    defmt::info!("boot: clock {}", b.clock);
+    defmt::info!(
+        "boot: clock {}, reset flags {=u8:#x}, fault {}",
+        b.clock,
+        boot.reset_flags,
+        boot.fault
+    );
 
     let mut pipeline = Pipeline::new(PipelineConfig::DEFAULT, ALLAN.take());
     let store = STORE.init(defmt::unwrap!(
         CalStore::new(b.calib).map_err(|_| "calibration flash geometry")
     ));
     app::load_calibration(store, &mut pipeline);
-    let app: &'static FwApp = APP.init(App::new(pipeline, BusConfig::DEFAULT));
+    let app: &'static FwApp = APP.init(
+        App::new(pipeline, BusConfig::DEFAULT)
+            .with_boot(boot)
+            .with_cycle_counter(b.cycles),
+    );
 
     spawner.spawn(defmt::unwrap!(watchdog(app, b.watchdog, b.led)));
     spawner.spawn(defmt::unwrap!(fpga_link(app, b.fpga_rx)));

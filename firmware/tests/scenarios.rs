@@ -134,8 +134,13 @@ fn slow_bus_drops_and_counts_telemetry_but_never_holds_up_the_link() {
             result: Ok(())
         }]
     );
-    let produced = frames_n + frames_n / 19 + c.silent_health as usize;
-    let got = fused(&ground.telemetry) + healths(&ground.telemetry).len();
+    let produced = frames_n + frames_n / 19 + c.silent_health as usize + c.housekeeping as usize;
+    let housekeeping = ground
+        .telemetry
+        .iter()
+        .filter(|t| matches!(t, Telemetry::Housekeeping(_)))
+        .count();
+    let got = fused(&ground.telemetry) + healths(&ground.telemetry).len() + housekeeping;
     eprintln!(
         "slow bus: {got} messages sent, {} dropped, {sent_bytes} bytes on the bus",
         h.telemetry_dropped
@@ -334,15 +339,18 @@ fn power_cut_at_every_flash_step_of_a_commit_keeps_old_or_new() {
 /// fed every period.
 #[test]
 fn a_stalled_task_stops_the_watchdog_feed() {
-    // The bus transmitter stalls when the line stops taking bytes: a 1-byte line nobody drains.
+    // The bus transmitter stalls when the line stops taking bytes: the ground drains it for 2 s, then stops and asks
+    // for a detailed health report (17 messages, more than the 256-byte line holds).
     let mut sat = Sat::fresh();
-    sat.board.bus_tx = firmware::sim::line::Line::new(1);
+    sat.board.bus_tx = firmware::sim::line::Line::new(256);
     let ground = Ground::new();
     let (fed_before, fed_after) = sat.run(MINUTE, async |_, board| {
-        Timer::after(Duration::from_secs(2)).await;
+        for _ in 0..200 {
+            Timer::after(Duration::from_millis(10)).await;
+            board.bus_tx.take_all();
+        }
         let before = board.feeds();
-        // Something to send: the transmitter blocks on the full line from now on.
-        ground.send(board, 1, Command::Ping);
+        ground.send(board, 1, Command::HealthRequest { detail: true });
         Timer::after(Duration::from_secs(3)).await;
         (before, board.feeds() - before)
     });
@@ -567,4 +575,79 @@ fn an_fpga_restart_keeps_the_outage_on_the_time_line() {
     );
     // Within one 1 KiB read (≈ 4 frames) of the truth.
     assert!(off_frames.abs() <= 5.0, "{off_frames} frames off");
+}
+
+/// Housekeeping every second, streaming or not: the boot facts (reset flags, the fault recorded before the reset,
+/// the firmware's commit), receive errors by kind, the last calibration store; and the periodic CRC check of the
+/// calibration in RAM, which reloads the stored table after a bit flip.
+#[test]
+fn housekeeping_reports_the_board_and_repairs_a_corrupted_calibration() {
+    use firmware::app::{BootInfo, FW_COMMIT};
+    use firmware::sim::line::SimRxError;
+    use shared::telemetry::{FaultKind, FaultRecord, HousekeepingReport, StoreOutcome};
+    let fault = FaultRecord {
+        kind: FaultKind::HardFault,
+        pc: 0x0800_C123,
+        cfsr: 0x0000_8200,
+    };
+    let Sat { app, board, store } = Sat::fresh();
+    let mut sat = Sat {
+        app: app.with_boot(BootInfo {
+            reset_flags: 1 << 4, // IWDG
+            fault: Some(fault),
+        }),
+        board,
+        store,
+    };
+    let mut ground = Ground::new();
+    let table7 = table(7);
+    sat.run(MINUTE, async |app, board| {
+        Timer::after(Duration::from_millis(2500)).await;
+        for (tag, cmd) in upload_commands(&table7, shared::telemetry::CAL_CHUNK_MAX, 3) {
+            assert_eq!(ground.transact(board, tag, cmd).await.result, Ok(()));
+        }
+        // A line error on the bus, then a bit flip in the calibration held in RAM.
+        board.bus_rx.inject(SimRxError::Framing, 0);
+        board.bus_rx.push(&[0x55]);
+        app.pipeline.lock().await.inject_calibration_bit_flip(3, 11);
+        Timer::after(Duration::from_millis(2500)).await;
+        ground.receive(board);
+    });
+    let hk: Vec<HousekeepingReport> = ground
+        .telemetry
+        .iter()
+        .filter_map(|t| match t {
+            Telemetry::Housekeeping(h) => Some(*h),
+            _ => None,
+        })
+        .collect();
+    assert!((4..=6).contains(&hk.len()), "{} reports in ≈ 5 s", hk.len());
+    // On a 1 s grid (one report runs late after the store's 0.5 s flash stall).
+    assert!(hk.windows(2).all(|w| w[1].uptime_ms > w[0].uptime_ms));
+    let first = hk[0];
+    let mean_period = (hk.last().unwrap().uptime_ms - first.uptime_ms) / (hk.len() as u64 - 1);
+    assert_eq!(mean_period, 1000);
+    assert_eq!(
+        (
+            first.reset_flags,
+            first.fault,
+            first.fw_commit,
+            first.fw_dirty
+        ),
+        (1 << 4, Some(fault), FW_COMMIT.0, FW_COMMIT.1)
+    );
+    assert_eq!(first.last_store, StoreOutcome::None);
+    assert_eq!(
+        first.core_load_permille, None,
+        "the host has no cycle counter"
+    );
+    let last = *hk.last().unwrap();
+    assert_eq!(last.last_store, StoreOutcome::Stored(1));
+    assert_eq!(last.cal_stores, [1, 0]);
+    assert_eq!(last.bus_rx_errors.line, 1);
+    assert_eq!(last.cal_ram_repairs, 1);
+    let p = sat.app.pipeline.try_lock().unwrap();
+    assert!(p.calibration_intact());
+    assert_eq!(p.calibration(), &table7, "the stored table is back");
+    assert_eq!(p.calibration_source(), CalSource::Stored);
 }

@@ -60,11 +60,9 @@ pub struct PipelineConfig {
     /// Line rate of the FPGA link, bit/s (8N1: 10 bits per byte). `SetDecimation` is refused when the frame
     /// stream it asks for would not fit: (base rate / (N + 1)) · `FRAME_LEN` · 10 > this.
     pub link_bit_rate: u32,
-    /// Frames the platform may hold between their arrival and the read whose time it gives to
-    /// [`Pipeline::set_arrival_us`] (its receive ring and read chunk; the firmware: 8 KiB ring ≈ 35 frames + a
-    /// 1 KiB read ≈ 5). An arrival gap that implies more lost frames than the sequence counter by more than this
-    /// is an outage the counter cannot see (an FPGA restart, or a silence of 2¹⁶ frames or more): time then
-    /// advances by the arrival gap.
+    /// Frames by which arrival times ([`Pipeline::set_arrival_us`]) may understate a gap (the platform's read
+    /// granularity; the firmware reads 1 KiB ≈ 4 frames at a time): used when the arrival gap decides how often the
+    /// 16-bit sequence counter wrapped during a silence.
     pub arrival_slack_frames: u16,
     /// Fusion parameters.
     pub fusion: FusionConfig,
@@ -77,7 +75,7 @@ impl PipelineConfig {
         frames_per_output: 32,
         health_every: 19,
         link_bit_rate: 2_000_000,
-        arrival_slack_frames: 40,
+        arrival_slack_frames: 8,
         fusion: FusionConfig::DEFAULT,
     };
 
@@ -92,6 +90,14 @@ impl PipelineConfig {
             .wrapping_mul(1000);
         need <= have
     }
+}
+
+/// The table's own CRC-32C, the last word of its encoding (`None` if it does not encode). Not the CRC of the whole
+/// encoding: a CRC over data followed by their CRC is a constant (the CRC's residue) and would never change.
+fn table_crc(table: &CalibrationTable<GROUPS>) -> Option<u32> {
+    let mut buf = [0u8; CAL_UPLOAD_MAX];
+    let bytes = table.encode(&mut buf).ok()?;
+    bytes.last_chunk::<4>().map(|c| u32::from_le_bytes(*c))
 }
 
 /// Something the platform must do. (Dumps come from [`Pipeline::poll_dump`].)
@@ -259,8 +265,11 @@ pub struct Pipeline<B> {
     cursor: Cursor,
     upload: Upload,
     uptime_ms: u64,
+    /// CRC of the table in force when it was loaded (`None`: it did not encode).
+    cal_crc: Option<u32>,
     arrival_us: Option<u64>,
     last_arrival_us: Option<u64>,
+    last_seq: Option<u16>,
     time_gaps: u32,
     invalid_frames: u32,
     telemetry_dropped: u32,
@@ -305,8 +314,10 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 active: false,
             },
             uptime_ms: 0,
+            cal_crc: table_crc(&CalibrationTable::factory()),
             arrival_us: None,
             last_arrival_us: None,
+            last_seq: None,
             time_gaps: 0,
             invalid_frames: 0,
             telemetry_dropped: 0,
@@ -316,10 +327,27 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 
     /// Puts a calibration in force (restarting the statistics that depend on it).
     pub fn load_calibration(&mut self, table: CalibrationTable<GROUPS>, source: CalSource) {
+        self.cal_crc = table_crc(&table);
         self.cal = table;
         self.cal_source = source;
         self.fusion = Fusion::new(*self.fusion.config());
         self.restart_statistics();
+    }
+
+    /// Whether the calibration in force is still the table that was loaded: its CRC-32C (the table's own, over its
+    /// encoding) against the one taken when it was loaded. The F405's SRAM has no ECC; the firmware checks this periodically and
+    /// reloads the table from flash when it fails.
+    pub fn calibration_intact(&self) -> bool {
+        self.cal_crc.is_some() && table_crc(&self.cal) == self.cal_crc
+    }
+
+    /// Flips bit `bit % 32` of group `group % GROUPS`'s first gyro bias in the calibration held in RAM, as a
+    /// radiation upset would, without updating its CRC (feature `fault-injection`: tests only).
+    #[cfg(any(test, feature = "fault-injection"))]
+    pub fn inject_calibration_bit_flip(&mut self, group: usize, bit: u32) {
+        if let Some(g) = self.cal.groups.get_mut(group % GROUPS) {
+            g.gyro_bias_q12[0] ^= 1i32.wrapping_shl(bit % 32);
+        }
     }
 
     /// The calibration in force.
@@ -349,9 +377,10 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     }
 
     /// The platform's monotonic time, µs, at which the bytes about to be pushed were read. With it, an outage the
-    /// frame sequence counter cannot measure (see [`PipelineConfig::arrival_slack_frames`]) stays on the time line:
-    /// the frame clock advances by the arrival gap, and [`Self::time_gaps`] counts it. Without it (replay of a
-    /// log), time comes from the counter alone.
+    /// 16-bit frame sequence counter cannot measure stays on the time line — an FPGA restart (the frame clock
+    /// advances by the arrival gap) or a silence of 2¹⁶ frames or more (the arrival gap tells how often the counter
+    /// wrapped) — and [`Self::time_gaps`] counts it. Without it (replay of a log), time comes from the counter
+    /// alone.
     pub fn set_arrival_us(&mut self, us: u64) {
         self.arrival_us = Some(us);
     }
@@ -534,13 +563,20 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         self.avg = Averager::NEW;
     }
 
-    /// Frames lost before `d`: the sequence counter's count, or the arrival gap's when that is larger by more than
-    /// the platform's slack (an outage the 16-bit counter cannot see).
+    /// Frames lost before `d`: the sequence counter's count, unless the arrival gap shows an outage the 16-bit
+    /// counter cannot measure — an FPGA restart (the counter jumps back: the decoder's restart), or a silence of
+    /// 2¹⁶ frames or more (the counter wrapped: the arrival gap picks the multiple of 2¹⁶). Buffering only makes
+    /// arrivals later, so a backlog read late never shortens time, and the counter stays exact for every gap it
+    /// can see.
     fn missing_before(&mut self, d: &Decoded) -> u32 {
         let by_seq = d.missing_before;
+        let seq = d.frame.seq;
         let (now, last) = (self.arrival_us, self.last_arrival_us);
+        let last_seq = self.last_seq.replace(seq);
         self.last_arrival_us = now;
-        let (Some(now), Some(last), Some(n)) = (now, last, self.clock.decimation()) else {
+        let (Some(now), Some(last), Some(n), Some(last_seq)) =
+            (now, last, self.clock.decimation(), last_seq)
+        else {
             return by_seq;
         };
         if n != d.frame.decimation {
@@ -548,20 +584,29 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         }
         // Frame period in ns: (N + 1) · 10¹² / base rate in mHz, ≥ 1 (a rate of 0 counts as 1 mHz). In u128 nothing
         // can wrap: the gap is < 2⁶⁴ µs, the period < 2¹⁶ · 10¹².
-        let period_ns = (u128::from(n)
+        let rate = NonZeroU128::new(u128::from(self.config.fpga_base_rate_mhz))
+            .unwrap_or(NonZeroU128::MIN);
+        let period_ns = u128::from(n)
             .wrapping_add(1)
             .wrapping_mul(1_000_000_000_000)
-            / u128::from(self.config.fpga_base_rate_mhz.max(1)))
-        .max(1);
+            / rate;
+        let period_ns = NonZeroU128::new(period_ns).unwrap_or(NonZeroU128::MIN);
         let gap_ns = u128::from(now.saturating_sub(last)).wrapping_mul(1000);
-        let frames = gap_ns.wrapping_add(period_ns / 2) / period_ns;
+        let frames = gap_ns.wrapping_add(period_ns.get() >> 1) / period_ns;
         let by_time = u32::try_from(frames.saturating_sub(1)).unwrap_or(u32::MAX);
-        if by_time > by_seq.saturating_add(u32::from(self.config.arrival_slack_frames)) {
-            self.time_gaps = self.time_gaps.wrapping_add(1);
+        let restart = seq.wrapping_sub(last_seq.wrapping_add(1)) >= 0x8000;
+        let slack = u32::from(self.config.arrival_slack_frames);
+        let missing = if restart {
             by_time
         } else {
-            by_seq
+            // The counter is right modulo 2¹⁶; time says how many wraps (none unless the gap nears 2¹⁶ frames).
+            let wraps = by_time.saturating_sub(by_seq).saturating_add(slack) >> 16;
+            by_seq.saturating_add(wraps << 16)
+        };
+        if missing != by_seq {
+            self.time_gaps = self.time_gaps.wrapping_add(1);
         }
+        missing
     }
 
     fn process(&mut self, d: &Decoded) {

@@ -106,6 +106,92 @@ pub struct HealthReport {
     pub commands: [u32; 2],
 }
 
+/// Receive errors of one UART since boot, by kind (wrapping).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RxErrorCounts {
+    /// Bytes lost: the UART overran, or its DMA ring was lapped.
+    pub overrun: u32,
+    /// Framing, noise or parity errors.
+    pub line: u32,
+    /// Any other receive error.
+    pub other: u32,
+}
+
+/// The outcome of the last calibration store since boot.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StoreOutcome {
+    /// No store since boot.
+    #[default]
+    None,
+    /// Written and read back as record `seq`.
+    Stored(u32),
+    /// Failed (flash error, or the read-back differed).
+    Failed,
+}
+
+/// What stopped the firmware before this boot, as its fault handler recorded it in RAM that survives a reset.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FaultRecord {
+    /// What happened.
+    pub kind: FaultKind,
+    /// Program counter of the faulting instruction (0 for a panic).
+    pub pc: u32,
+    /// SCB's configurable fault status register (CFSR) at the fault (0 for a panic).
+    pub cfsr: u32,
+}
+
+/// Kinds of [`FaultRecord`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FaultKind {
+    /// A HardFault (escalated bus, memory or usage fault; with flip-link, also a stack overflow).
+    HardFault,
+    /// A panic (the release firmware resets on one).
+    Panic,
+}
+
+/// The board around the pipeline (appended message; the firmware sends one every second, streaming or not).
+/// Counters wrap; `None` is "not measured on this platform" (e.g. the SITL has no cycle counter or sensors).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct HousekeepingReport {
+    /// Time since boot, ms.
+    pub uptime_ms: u64,
+    /// The firmware's git commit: its first 8 hex digits as a number (0: built outside git).
+    pub fw_commit: u32,
+    /// Built from a tree with uncommitted changes.
+    pub fw_dirty: bool,
+    /// Reset flags at boot (RCC_CSR bits 25–31 shifted down: bit 0 BOR, 1 PIN, 2 POR, 3 software, 4 IWDG,
+    /// 5 WWDG, 6 low-power).
+    pub reset_flags: u8,
+    /// The fault recorded before this boot, if any.
+    pub fault: Option<FaultRecord>,
+    /// Share of CPU time the link task spent processing frames over the last period, ‰ (DWT cycle counter).
+    pub core_load_permille: Option<u16>,
+    /// CPU cycles per processed frame over the last period.
+    pub core_cycles_per_frame: Option<u32>,
+    /// FPGA link receive errors.
+    pub link_rx_errors: RxErrorCounts,
+    /// Bus receive errors.
+    pub bus_rx_errors: RxErrorCounts,
+    /// Bus transmit errors.
+    pub bus_tx_errors: u32,
+    /// The bus node's counters.
+    pub bus: crate::bus::BusCounters,
+    /// FPGA control messages dropped (queue full).
+    pub fpga_ctrl_dropped: u32,
+    /// Outages bridged by arrival time (an FPGA restart, a counter wrap: `Pipeline::set_arrival_us`).
+    pub time_gaps: u32,
+    /// Calibration stores since boot, and how many failed.
+    pub cal_stores: [u32; 2],
+    /// The last store's outcome.
+    pub last_store: StoreOutcome,
+    /// Times the calibration in RAM failed its periodic CRC check and was reloaded from flash.
+    pub cal_ram_repairs: u32,
+}
+
 /// Fault counters of one group (sent after a health request with `detail`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FaultReport {
@@ -163,6 +249,8 @@ pub enum Telemetry {
     Faults(FaultReport),
     /// Answer to a command.
     Ack(Ack),
+    /// Board housekeeping (appended).
+    Housekeeping(HousekeepingReport),
 }
 
 /// Everything the ground can ask.
@@ -293,7 +381,7 @@ mod tests {
         bytes.len()
     }
 
-    fn largest_telemetry() -> [Telemetry; 3] {
+    fn largest_telemetry() -> [Telemetry; 4] {
         let faults = FaultCounts {
             saturated: u32::MAX,
             stuck: u32::MAX,
@@ -350,6 +438,41 @@ mod tests {
                 allan_samples: u64::MAX,
                 telemetry_dropped: u32::MAX,
                 commands: [u32::MAX; 2],
+            }),
+            Telemetry::Housekeeping(HousekeepingReport {
+                uptime_ms: u64::MAX,
+                fw_commit: u32::MAX,
+                fw_dirty: true,
+                reset_flags: u8::MAX,
+                fault: Some(FaultRecord {
+                    kind: FaultKind::HardFault,
+                    pc: u32::MAX,
+                    cfsr: u32::MAX,
+                }),
+                core_load_permille: Some(u16::MAX),
+                core_cycles_per_frame: Some(u32::MAX),
+                link_rx_errors: RxErrorCounts {
+                    overrun: u32::MAX,
+                    line: u32::MAX,
+                    other: u32::MAX,
+                },
+                bus_rx_errors: RxErrorCounts {
+                    overrun: u32::MAX,
+                    line: u32::MAX,
+                    other: u32::MAX,
+                },
+                bus_tx_errors: u32::MAX,
+                bus: crate::bus::BusCounters {
+                    packets: u32::MAX,
+                    kiss_errors: u32::MAX,
+                    csp_errors: u32::MAX,
+                    ignored: u32::MAX,
+                },
+                fpga_ctrl_dropped: u32::MAX,
+                time_gaps: u32::MAX,
+                cal_stores: [u32::MAX; 2],
+                last_store: StoreOutcome::Stored(u32::MAX),
+                cal_ram_repairs: u32::MAX,
             }),
         ]
     }

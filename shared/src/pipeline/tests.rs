@@ -547,9 +547,9 @@ fn arrival_times_keep_outages_the_sequence_counter_cannot_see() {
         0,
         "jitter of a 4-frame read is not an outage"
     );
-    // A backlog: 20 frames read at once, 36 frame periods after the previous read (within the 40-frame slack).
+    // A backlog: 20 frames read at once, 500 ms late (a flash erase stalled the CPU): late reads never add time.
     for k in 640..660u64 {
-        p.set_arrival_us(((644 + 36) as f64 * period_ns / 1000.0) as u64 + 300);
+        p.set_arrival_us(((644 + 302) as f64 * period_ns / 1000.0) as u64 + 300);
         let f = frame(k as u16, 15, [0.0; 3], [0.0, 0.0, -1.0], 20.0, &mut rng);
         outputs.extend(run(&mut p, &f.to_bytes()));
     }
@@ -593,4 +593,21 @@ fn arrival_times_keep_outages_the_sequence_counter_cannot_see() {
     // By the frames and the wrapped counter alone the stream spans ≈ 9.6 s (1 344 frames received, 4 464 seen
     // missing); with the two outages it spans ≈ 128 s.
     assert!(last.t_us > 125_000_000, "{}", last.t_us);
+}
+
+/// The periodic check of the calibration in RAM: intact after loading any table, broken by any single bit flip.
+#[test]
+fn a_bit_flip_in_the_calibration_in_ram_is_detected() {
+    let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
+    assert!(p.calibration_intact());
+    let mut t = CalibrationTable::<GROUPS>::factory();
+    t.cal_id = 3;
+    p.load_calibration(t, CalSource::Uploaded);
+    assert!(p.calibration_intact());
+    for bit in [0, 7, 31] {
+        p.inject_calibration_bit_flip(5, bit);
+        assert!(!p.calibration_intact(), "bit {bit}");
+        p.inject_calibration_bit_flip(5, bit);
+        assert!(p.calibration_intact());
+    }
 }
