@@ -312,6 +312,8 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
             cal_stores: [c.cal_stores, c.cal_store_errors],
             last_store: self.last_store.lock(Cell::get),
             cal_ram_repairs: c.cal_ram_repairs,
+            mode: p.mode(),
+            excluded: p.fusion().config().excluded,
         }
     }
 

@@ -42,6 +42,8 @@ enum Cmd {
     AllanRequest { first: u8, count: u8 },
     AllanReset,
     HealthRequest { detail: bool },
+    SetMode { idle: bool },
+    ExcludeGroups { gyro: u32, accel: u32 },
 }
 
 impl Cmd {
@@ -63,6 +65,10 @@ impl Cmd {
             Cmd::AllanRequest { first, count } => Command::AllanRequest { first, count },
             Cmd::AllanReset => Command::AllanReset,
             Cmd::HealthRequest { detail } => Command::HealthRequest { detail },
+            Cmd::SetMode { idle } => {
+                Command::SetMode(if idle { telemetry::Mode::Idle } else { telemetry::Mode::Stream })
+            }
+            Cmd::ExcludeGroups { gyro, accel } => Command::ExcludeGroups { gyro, accel },
         }
     }
 }

@@ -26,7 +26,7 @@ use crate::crc::crc32c;
 use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, HealthMask, div_round};
 use crate::telemetry::{
     Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, FusedReport,
-    HealthReport, Reject, Telemetry, decode, peek_tag,
+    HealthReport, Mode, Reject, Telemetry, decode, peek_tag,
 };
 use crate::wire::frame::{FRAME_LEN, GROUPS};
 use crate::wire::{Decoded, FpgaControl, FrameClock, FrameDecoder, LinkCounters};
@@ -271,6 +271,7 @@ pub struct Pipeline<B> {
     last_arrival_us: Option<u64>,
     last_seq: Option<u16>,
     time_gaps: u32,
+    mode: Mode,
     invalid_frames: u32,
     telemetry_dropped: u32,
     commands: [u32; 2],
@@ -319,6 +320,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             last_arrival_us: None,
             last_seq: None,
             time_gaps: 0,
+            mode: Mode::Stream,
             invalid_frames: 0,
             telemetry_dropped: 0,
             commands: [0; 2],
@@ -383,6 +385,11 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// alone.
     pub fn set_arrival_us(&mut self, us: u64) {
         self.arrival_us = Some(us);
+    }
+
+    /// The operating mode (`SetMode`).
+    pub fn mode(&self) -> Mode {
+        self.mode
     }
 
     /// Outages bridged by arrival time (see [`Self::set_arrival_us`]).
@@ -679,6 +686,24 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 }
                 self.config.frames_per_output = l;
                 self.avg = Averager::NEW;
+            }
+            Command::SetMode(mode) => {
+                self.mode = mode;
+                self.push(Output::Fpga(FpgaControl::SetStreaming(
+                    mode == Mode::Stream,
+                )));
+            }
+            Command::ExcludeGroups { gyro, accel } => {
+                let all = u32::MAX
+                    .checked_shr(32u32.saturating_sub(GROUPS as u32))
+                    .unwrap_or(0);
+                if (gyro | accel) & !all != 0 {
+                    return Err(Reject::BadArgument);
+                }
+                self.fusion.set_config(FusionConfig {
+                    excluded: [gyro, accel],
+                    ..*self.fusion.config()
+                });
             }
             Command::SetFusion { mode, robust } => {
                 self.fusion.set_config(FusionConfig {

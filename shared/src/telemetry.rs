@@ -190,6 +190,10 @@ pub struct HousekeepingReport {
     pub last_store: StoreOutcome,
     /// Times the calibration in RAM failed its periodic CRC check and was reloaded from flash.
     pub cal_ram_repairs: u32,
+    /// The operating mode.
+    pub mode: Mode,
+    /// Groups left out of the fusion by hand, `[gyro, accel]` bitmasks.
+    pub excluded: [u32; 2],
 }
 
 /// Fault counters of one group (sent after a health request with `detail`).
@@ -299,6 +303,27 @@ pub enum Command {
         /// Also send one [`FaultReport`] per group.
         detail: bool,
     },
+    /// Stream or idle (appended): the FPGA is told to start or stop its frame stream.
+    SetMode(Mode),
+    /// Leave groups out of the fusion by hand (appended): bitmasks over groups (bit g = group g) for the gyros and
+    /// the accelerometers; 0 puts every group back. Bits beyond the board's groups are refused (`BadArgument`).
+    ExcludeGroups {
+        /// Gyro groups left out.
+        gyro: u32,
+        /// Accelerometer groups left out.
+        accel: u32,
+    },
+}
+
+/// Operating mode (`SetMode`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Mode {
+    /// Frames stream and are processed (the mode at boot).
+    #[default]
+    Stream,
+    /// The FPGA's frame stream is stopped; housekeeping and commands go on.
+    Idle,
 }
 
 /// A command with the tag its ack will carry.
@@ -473,6 +498,8 @@ mod tests {
                 cal_stores: [u32::MAX; 2],
                 last_store: StoreOutcome::Stored(u32::MAX),
                 cal_ram_repairs: u32::MAX,
+                mode: Mode::Idle,
+                excluded: [u32::MAX; 2],
             }),
         ]
     }

@@ -57,6 +57,9 @@ pub struct FusionConfig {
     pub noise_shift: u8,
     /// Samples between recomputations of the weights.
     pub weight_interval: u16,
+    /// Groups left out by hand (the ground's `ExcludeGroups`), bitmasks over groups per kind `[gyro, accel]`;
+    /// applied whether or not `robust` is on.
+    pub excluded: [u32; 2],
 }
 
 impl FusionConfig {
@@ -69,6 +72,7 @@ impl FusionConfig {
         outlier_floor: [20_000, 2_000],
         noise_shift: 10,
         weight_interval: 256,
+        excluded: [0; 2],
     };
 }
 
@@ -591,7 +595,7 @@ impl<const G: usize> Fusion<G> {
                 *stuck |= u32::from(ch_stuck & channels != 0) << g;
             }
         }
-        let mut excluded = [0u32; 2];
+        let mut excluded = self.config.excluded;
         if self.config.robust {
             for (((faults, excluded), &sat), &stuck) in
                 [&mut out.health.gyro, &mut out.health.accel]
@@ -602,7 +606,7 @@ impl<const G: usize> Fusion<G> {
             {
                 faults.saturated = sat;
                 faults.stuck = stuck & !sat;
-                *excluded = sat | stuck;
+                *excluded |= sat | stuck;
             }
         }
 

@@ -611,3 +611,96 @@ fn a_bit_flip_in_the_calibration_in_ram_is_detected() {
         assert!(p.calibration_intact());
     }
 }
+
+/// `SetMode` tells the FPGA to stop or start its stream; `ExcludeGroups` leaves groups out of the fusion by hand
+/// (whether or not fault exclusion is on), keeps them out across a new calibration, and refuses groups the board
+/// does not have.
+#[test]
+fn mode_and_groups_excluded_by_hand() {
+    let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
+    let out = command(&mut p, 1, Command::SetMode(crate::telemetry::Mode::Idle));
+    assert_eq!(ack(&out).result, Ok(()));
+    assert_eq!(out[1], Output::Fpga(FpgaControl::SetStreaming(false)));
+    assert_eq!(p.mode(), crate::telemetry::Mode::Idle);
+    let out = command(&mut p, 2, Command::SetMode(crate::telemetry::Mode::Stream));
+    assert_eq!(out[1], Output::Fpga(FpgaControl::SetStreaming(true)));
+
+    let bad = command(
+        &mut p,
+        3,
+        Command::ExcludeGroups {
+            gyro: 1 << GROUPS,
+            accel: 0,
+        },
+    );
+    assert_eq!(ack(&bad).result, Err(Reject::BadArgument));
+    let out = command(
+        &mut p,
+        4,
+        Command::ExcludeGroups {
+            gyro: 0b101,
+            accel: 1 << 15,
+        },
+    );
+    assert_eq!(ack(&out).result, Ok(()));
+    p.load_calibration(CalibrationTable::factory(), CalSource::Uploaded);
+    assert_eq!(
+        p.fusion().config().excluded,
+        [0b101, 1 << 15],
+        "kept across a new table"
+    );
+
+    // One group's gyro x reads 5 °/s off: excluded by hand, the fused rate ignores it; put back, it counts.
+    let mut rng = Rng::new(3);
+    let frames: Vec<FrameRepr> = (0..64)
+        .map(|i| {
+            let mut f = frame(i, 15, [0.0; 3], [0.0, 0.0, -1.0], 20.0, &mut rng);
+            let off = frame(
+                i,
+                15,
+                [5.0, 0.0, 0.0],
+                [0.0, 0.0, -1.0],
+                20.0,
+                &mut Rng::new(3),
+            );
+            f.raw[2] = off.raw[2];
+            f
+        })
+        .collect();
+    for robust in [false, true] {
+        let mut p = Pipeline::new_boxed(PipelineConfig {
+            frames_per_output: 32,
+            fusion: FusionConfig {
+                mode: crate::fuse::FusionMode::Equal,
+                robust,
+                ..FusionConfig::DEFAULT
+            },
+            ..PipelineConfig::DEFAULT
+        });
+        command(
+            &mut p,
+            5,
+            Command::ExcludeGroups {
+                gyro: 1 << 2,
+                accel: 0,
+            },
+        );
+        let r = fused(&run(&mut p, &stream(&frames)));
+        assert!(
+            r.iter().all(|r| r.rate_udps[0].abs() < 20_000),
+            "{:?}",
+            r[0].rate_udps
+        );
+        assert!(r.iter().all(|r| r.used[0] == GROUPS as u8 - 1));
+        if !robust {
+            command(&mut p, 6, Command::ExcludeGroups { gyro: 0, accel: 0 });
+            let r = fused(&run(&mut p, &stream(&frames)));
+            // 5 °/s / 16 = 312 500 µ°/s in the equal-weight mean.
+            assert!(
+                r.iter().all(|r| (r.rate_udps[0] - 312_500).abs() < 20_000),
+                "{:?}",
+                r[0].rate_udps
+            );
+        }
+    }
+}

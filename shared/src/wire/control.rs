@@ -3,7 +3,7 @@
 //! ```text
 //! offset  size  field
 //!      0     4  sync marker 1A CF FC 1D
-//!      4     1  opcode (1 = set decimation)
+//!      4     1  opcode (1 = set decimation, 2 = streaming on/off)
 //!      5     2  argument, u16 little-endian
 //!      7     4  CRC-32C of bytes 0..7, little-endian
 //! ```
@@ -15,6 +15,7 @@ use crate::crc::crc32c;
 pub const CONTROL_LEN: usize = 11;
 
 const OP_SET_DECIMATION: u8 = 1;
+const OP_SET_STREAMING: u8 = 2;
 
 /// A control message.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -22,6 +23,8 @@ const OP_SET_DECIMATION: u8 = 1;
 pub enum FpgaControl {
     /// Keep one ADC data set of every N + 1.
     SetDecimation(u16),
+    /// Start (`true`) or stop (`false`) the frame stream (argument 1 / 0).
+    SetStreaming(bool),
 }
 
 /// Why bytes are not a control message.
@@ -39,6 +42,7 @@ impl FpgaControl {
     pub fn to_bytes(&self) -> [u8; CONTROL_LEN] {
         let (op, arg) = match *self {
             Self::SetDecimation(n) => (OP_SET_DECIMATION, n),
+            Self::SetStreaming(on) => (OP_SET_STREAMING, u16::from(on)),
         };
         let mut b = [0u8; CONTROL_LEN];
         let [a0, a1] = arg.to_le_bytes();
@@ -65,6 +69,7 @@ impl FpgaControl {
         }
         match (b[4], u16::from_le_bytes([b[5], b[6]])) {
             (OP_SET_DECIMATION, n) => Ok(Self::SetDecimation(n)),
+            (OP_SET_STREAMING, a @ (0 | 1)) => Ok(Self::SetStreaming(a == 1)),
             (op, _) => Err(ControlError::Opcode(op)),
         }
     }
@@ -103,5 +108,15 @@ mod tests {
         let crc = crc32c(&op[..7]).to_le_bytes();
         op[7..].copy_from_slice(&crc);
         assert_eq!(FpgaControl::parse(&op), Err(ControlError::Opcode(9)));
+        for on in [false, true] {
+            let b = FpgaControl::SetStreaming(on).to_bytes();
+            assert_eq!(&b[..7], &[0x1A, 0xCF, 0xFC, 0x1D, 2, u8::from(on), 0]);
+            assert_eq!(FpgaControl::parse(&b), Ok(FpgaControl::SetStreaming(on)));
+        }
+        // Streaming takes 0 or 1 only.
+        let mut op = [0x1A, 0xCF, 0xFC, 0x1D, 2, 2, 0, 0, 0, 0, 0];
+        let crc = crc32c(&op[..7]).to_le_bytes();
+        op[7..].copy_from_slice(&crc);
+        assert_eq!(FpgaControl::parse(&op), Err(ControlError::Opcode(2)));
     }
 }
