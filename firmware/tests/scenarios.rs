@@ -651,3 +651,55 @@ fn housekeeping_reports_the_board_and_repairs_a_corrupted_calibration() {
     assert_eq!(p.calibration(), &table7, "the stored table is back");
     assert_eq!(p.calibration_source(), CalSource::Stored);
 }
+
+/// `SetTime` through the tasks while frames stream: the ground maps every later report to spacecraft time
+/// (`ground decode`'s `unix_us`) within 10 ms of the truth (the correlation takes the last frame as "now").
+#[test]
+fn set_time_puts_the_reports_on_spacecraft_time() {
+    let log = frames(3 * 605);
+    let mut sat = Sat::fresh();
+    let mut ground = Ground::new();
+    let period = frame_period();
+    let unix_at_start_us = 1_795_000_000_000_000u64; // spacecraft time when the first frame arrived
+    sat.run(MINUTE, async |_, board| {
+        let fpga = firmware::sim::node::fpga_play(board, &log, period);
+        let ground_side = async {
+            Timer::after(Duration::from_millis(1234)).await;
+            let now_us = Instant::now().as_micros();
+            let ack = ground
+                .transact(
+                    board,
+                    1,
+                    Command::SetTime {
+                        unix_us: unix_at_start_us + now_us,
+                    },
+                )
+                .await;
+            assert_eq!(ack.result, Ok(()));
+        };
+        embassy_futures::join::join(fpga, ground_side).await;
+        Timer::after(Duration::from_millis(100)).await;
+        ground.receive(board);
+    });
+    let log =
+        host_test::formats::telemetry::TelemetryLog::decode(&ground.bytes, &BusConfig::DEFAULT);
+    let mapped: Vec<(u64, u64)> = log
+        .fused_with_unix_us()
+        .filter_map(|(r, u)| u.map(|u| (r.t_us, u)))
+        .collect();
+    assert!(
+        mapped.len() > 30,
+        "{} reports on spacecraft time",
+        mapped.len()
+    );
+    let worst_us = mapped
+        .iter()
+        .map(|&(t_us, unix_us)| (unix_us as i64 - (unix_at_start_us + t_us) as i64).abs())
+        .max()
+        .unwrap();
+    eprintln!(
+        "SetTime: {} reports mapped, worst error {worst_us} µs",
+        mapped.len()
+    );
+    assert!(worst_us <= 10_000, "{worst_us} µs");
+}

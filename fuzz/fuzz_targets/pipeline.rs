@@ -44,6 +44,7 @@ enum Cmd {
     HealthRequest { detail: bool },
     SetMode { idle: bool },
     ExcludeGroups { gyro: u32, accel: u32 },
+    SetTime { unix_us: u64 },
 }
 
 impl Cmd {
@@ -69,6 +70,7 @@ impl Cmd {
                 Command::SetMode(if idle { telemetry::Mode::Idle } else { telemetry::Mode::Stream })
             }
             Cmd::ExcludeGroups { gyro, accel } => Command::ExcludeGroups { gyro, accel },
+            Cmd::SetTime { unix_us } => Command::SetTime { unix_us },
         }
     }
 }

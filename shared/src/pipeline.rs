@@ -26,7 +26,7 @@ use crate::crc::crc32c;
 use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, HealthMask, div_round};
 use crate::telemetry::{
     Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, FusedReport,
-    HealthReport, Mode, Reject, Telemetry, decode, peek_tag,
+    HealthReport, Mode, Reject, Telemetry, TimeReport, decode, peek_tag,
 };
 use crate::wire::frame::{FRAME_LEN, GROUPS};
 use crate::wire::{Decoded, FpgaControl, FrameClock, FrameDecoder, LinkCounters};
@@ -41,8 +41,8 @@ pub const FUSED_CHANNEL0: usize = SENSOR_CHANNELS;
 pub const ALLAN_CHANNELS: usize = SENSOR_CHANNELS + AXES;
 /// Outputs the pipeline can hold before the caller polls.
 pub const OUTBOX_LEN: usize = 16;
-/// Most outputs one frame can produce (fused report + health report); `push_link` keeps this much room.
-const OUTPUTS_PER_FRAME: usize = 2;
+/// Most outputs one frame can produce (fused, health and time reports); `push_link` keeps this much room.
+const OUTPUTS_PER_FRAME: usize = 3;
 /// Longest accepted calibration upload (an encoded 16-group table).
 pub const CAL_UPLOAD_MAX: usize = encoded_len_max(GROUPS);
 /// Longest output interval, frames.
@@ -272,6 +272,10 @@ pub struct Pipeline<B> {
     last_seq: Option<u16>,
     time_gaps: u32,
     mode: Mode,
+    /// Frame time of the last frame, µs.
+    last_t_us: Option<u64>,
+    /// Spacecraft time minus frame time, µs (wrapping), once `SetTime` was received.
+    time_epoch_us: Option<u64>,
     invalid_frames: u32,
     telemetry_dropped: u32,
     commands: [u32; 2],
@@ -321,6 +325,8 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             last_seq: None,
             time_gaps: 0,
             mode: Mode::Stream,
+            last_t_us: None,
+            time_epoch_us: None,
             invalid_frames: 0,
             telemetry_dropped: 0,
             commands: [0; 2],
@@ -651,6 +657,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             AllanAccumulator::push_each(fused_channels, &self.fused_hold);
         }
 
+        self.last_t_us = Some(t_us);
         self.avg.add(&fused, f.temp_cdeg, t_us);
         self.last = fused;
         if self.avg.frames >= self.config.frames_per_output.max(1) {
@@ -666,14 +673,37 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                     self.outputs_since_health = 0;
                     let h = self.health();
                     self.push(Output::Telemetry(Telemetry::Health(h)));
+                    self.push_time();
                 }
             }
         }
     }
 
+    /// A [`TimeReport`] after the time was set: the last frame's time on both scales.
+    fn push_time(&mut self) {
+        if let Some(r) = self.time_report() {
+            self.push(Output::Telemetry(Telemetry::Time(r)));
+        }
+    }
+
+    /// The correlation of frame time and spacecraft time, once `SetTime` was received.
+    pub fn time_report(&self) -> Option<TimeReport> {
+        let (t_us, epoch) = (self.last_t_us.unwrap_or(0), self.time_epoch_us?);
+        Some(TimeReport {
+            t_us,
+            unix_us: t_us.wrapping_add(epoch),
+        })
+    }
+
     fn execute(&mut self, cmd: Command) -> Result<(), Reject> {
         match cmd {
             Command::Ping => {}
+            Command::SetTime { unix_us } => {
+                // "Now" is the last frame's time: the command is handled between reads, within one read of the
+                // newest frame (≈ 7 ms), plus the bus's latency; no PPS yet.
+                self.time_epoch_us = Some(unix_us.wrapping_sub(self.last_t_us.unwrap_or(0)));
+                self.push_time();
+            }
             Command::SetDecimation(n) => {
                 if !self.config.link_carries(n) {
                     return Err(Reject::BadArgument);

@@ -255,6 +255,18 @@ pub enum Telemetry {
     Ack(Ack),
     /// Board housekeeping (appended).
     Housekeeping(HousekeepingReport),
+    /// Frame time ↔ spacecraft time (appended), after `SetTime` and with every periodic Health.
+    Time(TimeReport),
+}
+
+/// One instant on both time scales: the frame time of `Fused.t_us` and the spacecraft time `SetTime` gave (Unix
+/// µs). The ground maps every report's `t_us` with the latest correlation (`ground decode`: column `unix_us`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TimeReport {
+    /// Frame time, µs (the scale of `FusedReport::t_us`).
+    pub t_us: u64,
+    /// Spacecraft time at that instant, µs since the Unix epoch.
+    pub unix_us: u64,
 }
 
 /// Everything the ground can ask.
@@ -312,6 +324,12 @@ pub enum Command {
         gyro: u32,
         /// Accelerometer groups left out.
         accel: u32,
+    },
+    /// Spacecraft time now, µs since the Unix epoch (appended): from then on a [`TimeReport`] correlates frame
+    /// time with it.
+    SetTime {
+        /// The time.
+        unix_us: u64,
     },
 }
 

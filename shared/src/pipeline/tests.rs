@@ -704,3 +704,44 @@ fn mode_and_groups_excluded_by_hand() {
         }
     }
 }
+
+/// `SetTime` correlates frame time with spacecraft time: a `Time` report right after the ack and with every
+/// periodic Health, both naming the last frame's time on the two scales.
+#[test]
+fn set_time_correlates_frame_time_with_spacecraft_time() {
+    let mut rng = Rng::new(4);
+    let frames: Vec<FrameRepr> = (0..100)
+        .map(|i| frame(i, 15, [0.0; 3], [0.0, 0.0, -1.0], 20.0, &mut rng))
+        .collect();
+    let mut p = Pipeline::new_boxed(PipelineConfig {
+        frames_per_output: 10,
+        health_every: 3,
+        ..PipelineConfig::DEFAULT
+    });
+    assert_eq!(p.time_report(), None);
+    run(&mut p, &stream(&frames[..50]));
+    // Frame 49 is at 49 · 16 / 9676.8 Hz = 81 018.518… µs.
+    let unix_us = 1_795_000_000_000_000u64;
+    let out = command(&mut p, 1, Command::SetTime { unix_us });
+    assert_eq!(ack(&out).result, Ok(()));
+    let t49 = 49 * 16 * 1_000_000_000 / 9_676_800;
+    let expected = TimeReport { t_us: t49, unix_us };
+    assert_eq!(out[1], Output::Telemetry(Telemetry::Time(expected)));
+    let out = run(&mut p, &stream(&frames[50..]));
+    let times: Vec<TimeReport> = out
+        .iter()
+        .filter_map(|o| match o {
+            Output::Telemetry(Telemetry::Time(t)) => Some(*t),
+            _ => None,
+        })
+        .collect();
+    let healths = out
+        .iter()
+        .filter(|o| matches!(o, Output::Telemetry(Telemetry::Health(_))))
+        .count();
+    assert_eq!(times.len(), healths, "one Time with each periodic Health");
+    assert!(!times.is_empty());
+    for t in times {
+        assert_eq!(t.unix_us - t.t_us, unix_us - t49, "one epoch");
+    }
+}
