@@ -55,8 +55,9 @@ pub const IDLE_TIMEOUT: Duration = Duration::from_millis(100);
 pub const LINK_CHUNK: usize = 1024;
 /// Scratch for the calibration store: record header, encoded table, CRC.
 pub const CAL_SCRATCH: usize = encoded_len_max(GROUPS) + 16;
-/// Telemetry messages queued for the bus (≈ 0.85 s of the default stream).
-pub const TELEMETRY_QUEUE: usize = 16;
+/// Telemetry messages queued for the bus (≈ 0.5 s of the default stream; 10 rather than 16 keeps RAM in its
+/// budget since the housekeeping message made every slot larger).
+pub const TELEMETRY_QUEUE: usize = 10;
 /// Acks and ping replies queued for the bus.
 pub const REPLY_QUEUE: usize = 4;
 /// Housekeeping period: a [`HousekeepingReport`] each time, a Health report too while the FPGA link is silent, and
@@ -166,6 +167,9 @@ pub struct BootInfo {
     pub fault: Option<FaultRecord>,
 }
 
+/// Reads the MCU's (temperature in 0.01 °C, VDDA in mV); `None` when it cannot.
+pub type McuSensorReader = fn() -> Option<(i16, u16)>;
+
 /// A free-running CPU cycle counter (the DWT's on the MCU) and its rate, for the core's load.
 #[derive(Debug, Clone, Copy)]
 pub struct CycleCounter {
@@ -206,6 +210,7 @@ pub struct App<B> {
     last_store: BlockingMutex<Raw, Cell<StoreOutcome>>,
     boot: BootInfo,
     cycles: Option<CycleCounter>,
+    mcu_sensors: Option<McuSensorReader>,
     /// Cycles the link task spent processing frames (wrapping).
     busy_cycles: AtomicU32,
 }
@@ -227,6 +232,7 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
             last_store: BlockingMutex::new(Cell::new(StoreOutcome::None)),
             boot: BootInfo::default(),
             cycles: None,
+            mcu_sensors: None,
             busy_cycles: AtomicU32::new(0),
         }
     }
@@ -234,6 +240,12 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
     /// With what the board knew at boot (reset flags, a recorded fault).
     pub fn with_boot(mut self, boot: BootInfo) -> Self {
         self.boot = boot;
+        self
+    }
+
+    /// With a reader of the MCU's temperature (0.01 °C) and VDDA (mV), for housekeeping.
+    pub fn with_mcu_sensors(mut self, read: McuSensorReader) -> Self {
+        self.mcu_sensors = Some(read);
         self
     }
 
@@ -287,6 +299,7 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
         load: Option<(u16, Option<u32>)>,
     ) -> HousekeepingReport {
         let c = self.counters();
+        let sensors = self.mcu_sensors.and_then(|read| read());
         HousekeepingReport {
             uptime_ms: Instant::now().as_millis(),
             fw_commit: FW_COMMIT.0,
@@ -295,6 +308,8 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
             fault: self.boot.fault,
             core_load_permille: load.map(|l| l.0),
             core_cycles_per_frame: load.and_then(|l| l.1),
+            mcu_temp_cdeg: sensors.map(|s| s.0),
+            vdda_mv: sensors.map(|s| s.1),
             link_rx_errors: RxErrorCounts {
                 overrun: p.link_counters().overruns,
                 line: c.link_line_errors,

@@ -98,6 +98,44 @@ pub struct Board {
     pub cycles: firmware::app::CycleCounter,
 }
 
+/// ADC1 for the MCU's internal channels (temperature, VREFINT), shared with the housekeeping task.
+static ADC: embassy_sync::blocking_mutex::Mutex<
+    embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex,
+    core::cell::RefCell<Option<embassy_stm32::adc::Adc<'static, peripherals::ADC1>>>,
+> = embassy_sync::blocking_mutex::Mutex::new(core::cell::RefCell::new(None));
+
+/// The factory calibration words in system memory (DS8626: VREFINT_CAL at 0x1FFF_7A2A, TS_CAL1 at 0x1FFF_7A2C,
+/// TS_CAL2 at 0x1FFF_7A2E; 16-bit each).
+fn factory_cal() -> firmware::mcu_sensors::FactoryCal {
+    let word = |addr: usize| {
+        // SAFETY: fixed, always-readable addresses of the F405's system memory (read-only OTP area); an aligned
+        // 16-bit volatile read has no side effect.
+        #[allow(unsafe_code)]
+        unsafe {
+            core::ptr::read_volatile(addr as *const u16)
+        }
+    };
+    firmware::mcu_sensors::FactoryCal {
+        vrefint_cal: word(0x1FFF_7A2A),
+        ts_cal1: word(0x1FFF_7A2C),
+        ts_cal2: word(0x1FFF_7A2E),
+    }
+}
+
+/// (MCU temperature 0.01 °C, VDDA mV) now; `None` before `init` or for impossible codes. Two conversions of 480
+/// ADC cycles (≈ 23 µs each at 21 MHz: the temperature sensor needs ≥ 10 µs of sampling).
+pub fn mcu_sensors() -> Option<(i16, u16)> {
+    use embassy_stm32::adc::{SampleTime, Temperature, VrefInt};
+    let (ts, vref) = ADC.lock(|cell| {
+        let mut adc = cell.borrow_mut();
+        let adc = adc.as_mut()?;
+        let ts = adc.blocking_read(&mut Temperature, SampleTime::CYCLES480);
+        let vref = adc.blocking_read(&mut VrefInt, SampleTime::CYCLES480);
+        Some((ts, vref))
+    })?;
+    firmware::mcu_sensors::convert(ts, vref, factory_cal())
+}
+
 /// SYSCLK, Hz (both clock sources give it: `clock_config`).
 pub const SYSCLK_HZ: u32 = 168_000_000;
 
@@ -163,6 +201,11 @@ pub fn init() -> Board {
     let calib = FlashWindow::new(Flash32(region1), CAL_FLASH_BASE - REGION1_BASE, CALIB_LEN);
 
     let led = Output::new(p.PC13, Level::High, Speed::Low);
+
+    let adc = embassy_stm32::adc::Adc::new(p.ADC1);
+    // Both internal channels are behind one switch (TSVREFE); the returned handles are unit values.
+    let _ = (adc.enable_temperature(), adc.enable_vrefint());
+    ADC.lock(|cell| cell.replace(Some(adc)));
 
     // The DWT cycle counter, for the core's load (housekeeping). `take` fails only if called twice: then the
     // counter stays off and reads 0.

@@ -5,6 +5,7 @@
 //! - [`app`]: the tasks' loops and the state they share ([`app::App`]).
 //! - [`flash`]: a `NorFlash` window onto the calibration sectors.
 //! - [`layout`]: the STM32F405 facts the loops and the models both need (flash sectors, line rates).
+//! - [`mcu_sensors`]: the MCU's temperature and VDDA from its ADC codes and factory calibration.
 //! - [`sim`] (host): the clock and executor (virtual or real time), UART lines, the flash model.
 #![no_std]
 
@@ -22,6 +23,7 @@ mod log;
 pub mod app;
 pub mod flash;
 pub mod layout;
+pub mod mcu_sensors;
 #[cfg(feature = "sim")]
 pub mod sim;
 

@@ -66,7 +66,8 @@ async fn main(spawner: Spawner) {
     let app: &'static FwApp = APP.init(
         App::new(pipeline, BusConfig::DEFAULT)
             .with_boot(boot)
-            .with_cycle_counter(b.cycles),
+            .with_cycle_counter(b.cycles)
+            .with_mcu_sensors(board::mcu_sensors),
     );
 
     spawner.spawn(defmt::unwrap!(watchdog(app, b.watchdog, b.led)));

@@ -172,6 +172,10 @@ pub struct HousekeepingReport {
     pub core_load_permille: Option<u16>,
     /// CPU cycles per processed frame over the last period.
     pub core_cycles_per_frame: Option<u32>,
+    /// MCU temperature, 0.01 °C (its internal sensor with the factory calibration).
+    pub mcu_temp_cdeg: Option<i16>,
+    /// Analog supply VDDA, mV (from VREFINT and its factory calibration).
+    pub vdda_mv: Option<u16>,
     /// FPGA link receive errors.
     pub link_rx_errors: RxErrorCounts,
     /// Bus receive errors.
@@ -494,6 +498,8 @@ mod tests {
                 }),
                 core_load_permille: Some(u16::MAX),
                 core_cycles_per_frame: Some(u32::MAX),
+                mcu_temp_cdeg: Some(i16::MIN),
+                vdda_mv: Some(u16::MAX),
                 link_rx_errors: RxErrorCounts {
                     overrun: u32::MAX,
                     line: u32::MAX,
