@@ -33,6 +33,17 @@ fn fused(t: &[Telemetry]) -> usize {
         .count()
 }
 
+/// The last fused report received.
+fn last_fused(t: &[Telemetry]) -> shared::telemetry::FusedReport {
+    t.iter()
+        .rev()
+        .find_map(|t| match t {
+            Telemetry::Fused(f) => Some(*f),
+            _ => None,
+        })
+        .expect("a fused report")
+}
+
 fn healths(t: &[Telemetry]) -> Vec<shared::telemetry::HealthReport> {
     t.iter()
         .filter_map(|t| match t {
@@ -516,15 +527,7 @@ fn a_store_during_streaming_loses_at_most_the_documented_frames_and_no_command()
     );
     // Time runs on across the gap: the last report starts where the log's frames put it (the frame clock counts
     // the lost frames), within one output interval.
-    let last = ground
-        .telemetry
-        .iter()
-        .rev()
-        .find_map(|t| match t {
-            Telemetry::Fused(f) => Some(*f),
-            _ => None,
-        })
-        .unwrap();
+    let last = last_fused(&ground.telemetry);
     let t_end_us =
         (frames_n as u64 - 1) * 16 * 1_000_000_000 / PipelineConfig::DEFAULT.fpga_base_rate_mhz;
     let interval_us = 32 * 16 * 1_000_000_000 / PipelineConfig::DEFAULT.fpga_base_rate_mhz;
@@ -553,15 +556,7 @@ fn an_fpga_restart_keeps_the_outage_on_the_time_line() {
     let p = sat.app.pipeline.try_lock().unwrap();
     assert_eq!(p.time_gaps(), 1);
     assert_eq!(p.link_counters().seq_restarts, 1);
-    let last = ground
-        .telemetry
-        .iter()
-        .rev()
-        .find_map(|t| match t {
-            Telemetry::Fused(f) => Some(*f),
-            _ => None,
-        })
-        .unwrap();
+    let last = last_fused(&ground.telemetry);
     // The second run's frame k is at 1 s + 10 s + k periods (its first frame one period after the 10 s wait).
     let period_us = period.as_micros() as f64;
     let second_start_us = 605.0 * period_us + 10.0e6;
