@@ -13,6 +13,7 @@ pub mod bus;
 pub mod calib;
 pub mod crc;
 pub mod fuse;
+pub mod nav;
 pub mod pipeline;
 pub mod serde_array;
 pub mod storage;
