@@ -145,13 +145,22 @@ fn slow_bus_drops_and_counts_telemetry_but_never_holds_up_the_link() {
             result: Ok(())
         }]
     );
-    let produced = frames_n + frames_n / 19 + c.silent_health as usize + c.housekeeping as usize;
-    let housekeeping = ground
+    // One Fused and one Nav report per frame, a Health every 19 outputs, Housekeeping every second.
+    let produced =
+        2 * frames_n + frames_n / 19 + c.silent_health as usize + c.housekeeping as usize;
+    let got = ground
         .telemetry
         .iter()
-        .filter(|t| matches!(t, Telemetry::Housekeeping(_)))
+        .filter(|t| {
+            matches!(
+                t,
+                Telemetry::Fused(_)
+                    | Telemetry::Nav(_)
+                    | Telemetry::Health(_)
+                    | Telemetry::Housekeeping(_)
+            )
+        })
         .count();
-    let got = fused(&ground.telemetry) + healths(&ground.telemetry).len() + housekeeping;
     eprintln!(
         "slow bus: {got} messages sent, {} dropped, {sent_bytes} bytes on the bus",
         h.telemetry_dropped

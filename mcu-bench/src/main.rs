@@ -15,6 +15,7 @@ use shared::allan::AllanAccumulator;
 use shared::bench::BenchFrames;
 use shared::calib::{AXES, CalibrationTable, RawCounts};
 use shared::fuse::{Fusion, FusionConfig, FusionMode};
+use shared::nav::NavIntegrator;
 use shared::pipeline::{AllanBank, FUSED_CHANNEL0, Pipeline, PipelineConfig};
 use shared::wire::frame::{FRAME_LEN, GROUPS};
 use shared::wire::{Decoded, FrameDecoder};
@@ -149,15 +150,21 @@ fn count(name: &str, config: PipelineConfig, bank: &mut AllanBank) {
 
 /// The stages of a frame's path run one at a time over the same stream (default fusion), so that each has its own
 /// count: link decoding with the CRC, ADC codes to signed counts, the 16 groups' calibration, the fusion, the 102 Allan
-/// channels. Their sum is below the pipeline's by what `Pipeline` adds (output averaging, health, bookkeeping).
+/// channels, the navigation increments. Their sum is below the pipeline's by what `Pipeline` adds (output averaging,
+/// health, bookkeeping).
 fn stages(bank: &mut AllanBank) {
-    const NAMES: [&str; 5] = [
+    const NAMES: [&str; 6] = [
         "decode + CRC",
         "ADC codes to signed counts",
         "calibration (16 groups)",
         "fusion",
         "Allan (102 channels)",
+        "navigation increments (f32, coning + sculling)",
     ];
+    const RAD_PER_UDEG: f32 = core::f32::consts::PI / 180.0e6;
+    const MPS2_PER_UG: f32 = 9.806_65e-6;
+    let mut nav = NavIntegrator::new();
+    let mut nav_frames = 0usize;
     let cal = CalibrationTable::<GROUPS>::factory();
     let mut decoder = FrameDecoder::new();
     let mut fusion = Fusion::<GROUPS>::new(FusionConfig::DEFAULT);
@@ -207,6 +214,22 @@ fn stages(bank: &mut AllanBank) {
                 for (a, f) in axes.iter().zip(&fused) {
                     AllanAccumulator::push_each(sensors, a.as_flattened());
                     AllanAccumulator::push_each(fused_channels, f);
+                }
+            }),
+            ticks_between(|| {
+                // As `Pipeline` does: SI units, one frame period, an interval taken every 32 frames.
+                let dt_s = 16.0 * 1000.0 / 9_676_800.0f32;
+                for f in &fused {
+                    let [gx, gy, gz, ax, ay, az] = f.map(|x| x as f32);
+                    nav.add(
+                        [gx * RAD_PER_UDEG, gy * RAD_PER_UDEG, gz * RAD_PER_UDEG],
+                        [ax * MPS2_PER_UG, ay * MPS2_PER_UG, az * MPS2_PER_UG],
+                        dt_s,
+                    );
+                    nav_frames += 1;
+                    if nav_frames.is_multiple_of(32) {
+                        core::hint::black_box(nav.take());
+                    }
                 }
             }),
         ];

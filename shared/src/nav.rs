@@ -111,11 +111,37 @@ impl NavIntegrator {
         self.frames = self.frames.saturating_add(1);
     }
 
-    /// `n` lost frames of `dt_s` each: bridged with the last rate and specific force.
+    /// `n` lost frames of `dt_s` each: bridged with the last rate and specific force, in closed form (the same as
+    /// `n` calls of [`Self::add`] with those values, at any `n`). With a constant increment a (and v) every
+    /// correction term but the first frame's is α₀ × a, α₀ the angle before the bridge:
+    /// β += ½ n α₀ × a + (1/12) α_p × a, s += ½ n (α₀ × v + υ₀ × a) + (1/12)(α_p × v + υ_p × a).
     pub fn bridge(&mut self, n: u32, dt_s: f32) {
-        for _ in 0..n {
-            self.add(self.last_rate, self.last_force, dt_s);
+        if n == 0 {
+            return;
         }
+        let nf = n as f32;
+        let (a, v) = (scale(self.last_rate, dt_s), scale(self.last_force, dt_s));
+        if self.corrections {
+            let (a0, v0) = (self.alpha, self.nu);
+            let beta = add(
+                scale(cross(a0, a), 0.5 * nf),
+                scale(cross(self.alpha_prev, a), 1.0 / 12.0),
+            );
+            let scul = add(
+                scale(add(cross(a0, v), cross(v0, a)), 0.5 * nf),
+                scale(
+                    add(cross(self.alpha_prev, v), cross(self.nu_prev, a)),
+                    1.0 / 12.0,
+                ),
+            );
+            self.beta = add(self.beta, beta);
+            self.scul = add(self.scul, scul);
+        }
+        self.alpha = add(self.alpha, scale(a, nf));
+        self.nu = add(self.nu, scale(v, nf));
+        (self.alpha_prev, self.nu_prev) = (a, v);
+        self.dt_s += dt_s * nf;
+        self.frames = self.frames.saturating_add(n);
         self.bridged = self.bridged.saturating_add(n);
     }
 

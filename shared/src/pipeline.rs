@@ -24,9 +24,10 @@ use crate::allan::{AllanAccumulator, LEVELS};
 use crate::calib::{AXES, CalibrationTable, RawCounts, encoded_len_max};
 use crate::crc::crc32c;
 use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, HealthMask, div_round};
+use crate::nav::NavIntegrator;
 use crate::telemetry::{
     Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, FusedReport,
-    HealthReport, Mode, Reject, Telemetry, TimeReport, decode, peek_tag,
+    HealthReport, Mode, NavReport, Reject, Telemetry, TimeReport, decode, peek_tag,
 };
 use crate::wire::frame::{FRAME_LEN, GROUPS};
 use crate::wire::{Decoded, FpgaControl, FrameClock, FrameDecoder, LinkCounters};
@@ -41,8 +42,9 @@ pub const FUSED_CHANNEL0: usize = SENSOR_CHANNELS;
 pub const ALLAN_CHANNELS: usize = SENSOR_CHANNELS + AXES;
 /// Outputs the pipeline can hold before the caller polls.
 pub const OUTBOX_LEN: usize = 16;
-/// Most outputs one frame can produce (fused, health and time reports); `push_link` keeps this much room.
-const OUTPUTS_PER_FRAME: usize = 3;
+/// Most outputs one frame can produce (fused, navigation, health and time reports); `push_link` keeps this much
+/// room.
+const OUTPUTS_PER_FRAME: usize = 4;
 /// Longest accepted calibration upload (an encoded 16-group table).
 pub const CAL_UPLOAD_MAX: usize = encoded_len_max(GROUPS);
 /// Longest output interval, frames.
@@ -64,6 +66,8 @@ pub struct PipelineConfig {
     /// granularity; the firmware reads 1 KiB ≈ 4 frames at a time): used when the arrival gap decides how often the
     /// 16-bit sequence counter wrapped during a silence.
     pub arrival_slack_frames: u16,
+    /// Navigation increments (`Telemetry::Nav`, `shared::nav`) after every `Fused` report.
+    pub nav: bool,
     /// Fusion parameters.
     pub fusion: FusionConfig,
 }
@@ -76,6 +80,7 @@ impl PipelineConfig {
         health_every: 19,
         link_bit_rate: 2_000_000,
         arrival_slack_frames: 8,
+        nav: true,
         fusion: FusionConfig::DEFAULT,
     };
 
@@ -274,6 +279,10 @@ pub struct Pipeline<B> {
     mode: Mode,
     /// Frame time of the last frame, µs.
     last_t_us: Option<u64>,
+    nav: NavIntegrator,
+    /// Frame-clock ticks at the start of the navigation interval (the end of the last one).
+    nav_start_ticks: Option<u64>,
+    nav_clipped: u16,
     /// Spacecraft time minus frame time, µs (wrapping), once `SetTime` was received.
     time_epoch_us: Option<u64>,
     invalid_frames: u32,
@@ -327,6 +336,9 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             mode: Mode::Stream,
             last_t_us: None,
             time_epoch_us: None,
+            nav: NavIntegrator::new(),
+            nav_start_ticks: None,
+            nav_clipped: 0,
             invalid_frames: 0,
             telemetry_dropped: 0,
             commands: [0; 2],
@@ -574,6 +586,9 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             .iter_mut()
             .for_each(AllanAccumulator::reset);
         self.avg = Averager::NEW;
+        self.nav = NavIntegrator::new();
+        self.nav_start_ticks = None;
+        self.nav_clipped = 0;
     }
 
     /// Frames lost before `d`: the sequence counter's count, unless the arrival gap shows an outage the 16-bit
@@ -642,6 +657,9 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             *out = cal.apply(r);
         }
         let fused = self.fusion.fuse(&raw, &axes, &self.cal);
+        if self.config.nav {
+            self.integrate(&fused, f.decimation, missing, tick.base_ticks);
+        }
         if !fused.valid() {
             self.invalid_frames = self.invalid_frames.wrapping_add(1);
         }
@@ -665,6 +683,12 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             self.out_seq = self.out_seq.wrapping_add(1);
             self.avg = Averager::NEW;
             self.push(Output::Telemetry(Telemetry::Fused(report)));
+            if self.config.nav {
+                let end = tick
+                    .base_ticks
+                    .wrapping_add(u64::from(f.decimation).wrapping_add(1));
+                self.push_nav(report.seq, end);
+            }
             // Counted only when periodic health is on (health_every == 0: only on request); then the count stays
             // below health_every ≤ u16::MAX before the increment, so it cannot overflow.
             if self.config.health_every > 0 {
@@ -677,6 +701,56 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 }
             }
         }
+    }
+
+    /// One frame into the navigation increments: the fused rate and specific force (SI units, `f32`) over the
+    /// frame's time step; lost frames before it, and a frame without a valid fused sample, bridged.
+    fn integrate(&mut self, fused: &FusedSample, decimation: u16, missing: u32, base_ticks: u64) {
+        const RAD_PER_UDEG: f32 = core::f32::consts::PI / 180.0e6;
+        const MPS2_PER_UG: f32 = 9.806_65e-6;
+        let dt_s = f32::from(decimation) + 1.0;
+        let dt_s = dt_s * 1000.0 / self.config.fpga_base_rate_mhz.max(1) as f32;
+        if self.nav_start_ticks.is_none() {
+            self.nav_start_ticks = Some(base_ticks);
+        } else {
+            self.nav.bridge(missing, dt_s);
+        }
+        if fused.valid() {
+            let [gx, gy, gz, ax, ay, az] = fused.axes.map(|x| x as f32);
+            self.nav.add(
+                [gx * RAD_PER_UDEG, gy * RAD_PER_UDEG, gz * RAD_PER_UDEG],
+                [ax * MPS2_PER_UG, ay * MPS2_PER_UG, az * MPS2_PER_UG],
+                dt_s,
+            );
+        } else {
+            self.nav.bridge(1, dt_s);
+        }
+        if fused.health.gyro.saturated | fused.health.accel.saturated != 0 {
+            self.nav_clipped = self.nav_clipped.saturating_add(1);
+        }
+    }
+
+    /// The interval's [`NavReport`], ending at frame-clock tick `end`.
+    fn push_nav(&mut self, seq: u32, end: u64) {
+        let inc = self.nav.take();
+        let start = self.nav_start_ticks.replace(end).unwrap_or(end);
+        let rate = self.config.fpga_base_rate_mhz;
+        let t_us = FrameClock::ticks_to_us(start, rate);
+        let dt_us = FrameClock::ticks_to_us(end, rate).saturating_sub(t_us);
+        // f32 → i64 casts saturate: a value beyond ±9.2e18 nrad cannot occur in one interval.
+        let nrad = inc.dtheta_rad.map(|x| (x * 1.0e9) as i64);
+        let umps = inc.dv_mps.map(|x| (x * 1.0e6) as i64);
+        let report = NavReport {
+            seq,
+            t_us,
+            dt_us: u32::try_from(dt_us).unwrap_or(u32::MAX),
+            dtheta_nrad: nrad,
+            dv_umps: umps,
+            frames: u16::try_from(inc.frames).unwrap_or(u16::MAX),
+            bridged: u16::try_from(inc.bridged).unwrap_or(u16::MAX),
+            clipped: core::mem::take(&mut self.nav_clipped),
+        };
+        self.push(Output::Telemetry(Telemetry::Nav(report)));
     }
 
     /// A [`TimeReport`] after the time was set: the last frame's time on both scales.

@@ -261,6 +261,31 @@ pub enum Telemetry {
     Housekeeping(HousekeepingReport),
     /// Frame time ↔ spacecraft time (appended), after `SetTime` and with every periodic Health.
     Time(TimeReport),
+    /// Navigation increments of one output interval (appended), after its `Fused` report.
+    Nav(NavReport),
+}
+
+/// The angle and velocity increments of one output interval (`shared::nav`: coning and sculling corrected),
+/// integrated at the frame rate from the fused rate and specific force. Fixed-point on the wire: ΔΘ in nanoradians,
+/// ΔV in micrometres per second, both in the body frame (ΔV at the interval's start, as strapdown practice has it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct NavReport {
+    /// The `Fused` report of the same interval.
+    pub seq: u32,
+    /// Frame time at the interval's start, µs (the end of the previous interval).
+    pub t_us: u64,
+    /// Length of the interval, µs, from the frame clock (lost frames included).
+    pub dt_us: u32,
+    /// ΔΘ, nrad.
+    pub dtheta_nrad: [i64; 3],
+    /// ΔV (specific force integrated), µm/s.
+    pub dv_umps: [i64; 3],
+    /// Frames integrated, bridged ones included.
+    pub frames: u16,
+    /// Frames bridged: lost on the link, or without a valid fused sample (the last rate and force held).
+    pub bridged: u16,
+    /// Frames in which a sensor sat at an ADC rail.
+    pub clipped: u16,
 }
 
 /// One instant on both time scales: the frame time of `Fused.t_us` and the spacecraft time `SetTime` gave (Unix
@@ -428,7 +453,7 @@ mod tests {
         bytes.len()
     }
 
-    fn largest_telemetry() -> [Telemetry; 4] {
+    fn largest_telemetry() -> [Telemetry; 5] {
         let faults = FaultCounts {
             saturated: u32::MAX,
             stuck: u32::MAX,
@@ -524,6 +549,16 @@ mod tests {
                 cal_ram_repairs: u32::MAX,
                 mode: Mode::Idle,
                 excluded: [u32::MAX; 2],
+            }),
+            Telemetry::Nav(NavReport {
+                seq: u32::MAX,
+                t_us: u64::MAX,
+                dt_us: u32::MAX,
+                dtheta_nrad: [i64::MIN; 3],
+                dv_umps: [i64::MIN; 3],
+                frames: u16::MAX,
+                bridged: u16::MAX,
+                clipped: u16::MAX,
             }),
         ]
     }

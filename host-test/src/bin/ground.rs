@@ -246,6 +246,9 @@ struct DecodeArgs {
     /// Also the Allan deviations of the core's Allan reports (roots taken here), as CSV.
     #[arg(long)]
     allan: Option<PathBuf>,
+    /// Also the navigation increments (ΔΘ, ΔV per output interval), as CSV.
+    #[arg(long)]
+    nav: Option<PathBuf>,
     /// CSP header version on the bus (1 or 2).
     #[arg(long, default_value = "1", value_parser = parse_csp_version)]
     csp_version: CspVersion,
@@ -539,6 +542,16 @@ fn decode(a: DecodeArgs) -> Result<()> {
         if n == 0 {
             eprintln!(
                 "warning: no Allan reports in the stream: {} holds only its header",
+                p.display()
+            );
+        }
+    }
+    if let Some(p) = &a.nav {
+        let n = write_file(p, |w| log.write_nav_csv(w))?;
+        println!("{}: {n} navigation increments", p.display());
+        if n == 0 {
+            eprintln!(
+                "warning: no navigation reports in the stream: {} holds only its header",
                 p.display()
             );
         }

@@ -119,6 +119,36 @@ impl TelemetryLog {
         Ok(())
     }
 
+    /// Writes the navigation increments (`Telemetry::Nav`) as CSV, in SI units: `t_s` (interval start, frame time),
+    /// `dt_s`, ΔΘ in rad, ΔV in m/s, frames, bridged and clipped counts, and the `Fused` report's `seq`. Returns the
+    /// number of rows.
+    pub fn write_nav_csv(&self, out: &mut impl std::io::Write) -> std::io::Result<usize> {
+        writeln!(
+            out,
+            "t_s,dt_s,dtheta_x_rad,dtheta_y_rad,dtheta_z_rad,dv_x_mps,dv_y_mps,dv_z_mps,frames,bridged,clipped,seq"
+        )?;
+        let mut n = 0;
+        for m in &self.messages {
+            if let Telemetry::Nav(r) = m {
+                let [tx, ty, tz] = r.dtheta_nrad.map(|x| x as f64 * 1e-9);
+                let [vx, vy, vz] = r.dv_umps.map(|x| x as f64 * 1e-6);
+                writeln!(
+                    out,
+                    // As sent: whole nrad and µm/s, whole µs.
+                    "{:.6},{:.6},{tx:.9},{ty:.9},{tz:.9},{vx:.6},{vy:.6},{vz:.6},{},{},{},{}",
+                    r.t_us as f64 / 1e6,
+                    f64::from(r.dt_us) / 1e6,
+                    r.frames,
+                    r.bridged,
+                    r.clipped,
+                    r.seq
+                )?;
+                n += 1;
+            }
+        }
+        Ok(n)
+    }
+
     /// Writes the Allan deviations the core's reports give, one row per channel and level:
     /// `channel,column,tau_s,count,samples,dev`. `column` names the channel as in the interchange CSV (`g03z` for
     /// group 3's gyro z, `mean_gz` for the fused axis), `dev` is √(sum_sq / (2·count·m²)) in °/s or g — the root
@@ -203,6 +233,32 @@ mod tests {
         assert_eq!(
             text.lines().nth(1),
             Some("3,a00x,0.006613756612,99,400,5e-5")
+        );
+    }
+
+    #[test]
+    fn nav_reports_become_si_rows() {
+        let log = TelemetryLog {
+            messages: vec![Telemetry::Nav(shared::telemetry::NavReport {
+                seq: 7,
+                t_us: 1_500_000,
+                dt_us: 52_910,
+                dtheta_nrad: [1_234_567, -2, 0],
+                dv_umps: [-518_251, 0, 3],
+                frames: 35,
+                bridged: 3,
+                clipped: 1,
+            })],
+            stats: StreamStats::default(),
+        };
+        let mut out = Vec::new();
+        assert_eq!(log.write_nav_csv(&mut out).unwrap(), 1);
+        let text = String::from_utf8(out).unwrap();
+        assert_eq!(
+            text.lines().nth(1),
+            Some(
+                "1.500000,0.052910,0.001234567,-0.000000002,0.000000000,-0.518251,0.000000,0.000003,35,3,1,7"
+            )
         );
     }
 }

@@ -190,3 +190,37 @@ fn static_gives_gravity_and_no_rotation_and_bridges_count() {
     let next = nav.take();
     assert_eq!((next.frames, next.bridged, next.dt_s), (0, 0, 0.0));
 }
+
+/// The closed-form bridge equals frame-by-frame integration with the held values.
+#[test]
+fn bridging_in_closed_form_equals_holding_frame_by_frame() {
+    let dt = (1.0 / FPS) as f32;
+    let start = |nav: &mut NavIntegrator| {
+        nav.add([0.1, -0.2, 0.05], [0.3, 9.0, -1.0], dt);
+        nav.add([0.12, -0.15, 0.07], [0.2, 9.1, -0.8], dt);
+    };
+    for n in [1u32, 2, 7, 100] {
+        let (mut a, mut b) = (NavIntegrator::new(), NavIntegrator::new());
+        start(&mut a);
+        start(&mut b);
+        a.bridge(n, dt);
+        for _ in 0..n {
+            b.add([0.12, -0.15, 0.07], [0.2, 9.1, -0.8], dt);
+        }
+        a.add([0.2, 0.1, 0.0], [1.0, 8.0, 0.5], dt);
+        b.add([0.2, 0.1, 0.0], [1.0, 8.0, 0.5], dt);
+        let (ia, ib) = (a.take(), b.take());
+        assert_eq!((ia.frames, ia.bridged, ib.bridged), (n + 3, n, 0));
+        for k in 0..3 {
+            let tol = 1e-6 * (1.0 + ib.dtheta_rad[k].abs() + ib.dv_mps[k].abs());
+            assert!(
+                (ia.dtheta_rad[k] - ib.dtheta_rad[k]).abs() < tol,
+                "{n}: {ia:?} {ib:?}"
+            );
+            assert!(
+                (ia.dv_mps[k] - ib.dv_mps[k]).abs() < 10.0 * tol,
+                "{n}: {ia:?} {ib:?}"
+            );
+        }
+    }
+}

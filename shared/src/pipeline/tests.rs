@@ -745,3 +745,62 @@ fn set_time_correlates_frame_time_with_spacecraft_time() {
         assert_eq!(t.unix_us - t.t_us, unix_us - t49, "one epoch");
     }
 }
+
+/// Navigation increments through the pipeline: a board turning at 12.5 °/s about x under 1 g along −z gives
+/// ΔΘ = ω·dt and ΔV = f·dt per interval (f = −g along z; rotation about x turns it a little into y); lost frames
+/// are bridged and counted, and dt comes from the frame clock, lost frames included.
+#[test]
+fn nav_increments_of_a_steady_turn_with_lost_frames() {
+    let mut rng = Rng::new(8);
+    let keep = |i: u16| !(40..43).contains(&i); // frames 40, 41, 42 are lost
+    let frames: Vec<FrameRepr> = (0..96u16)
+        .filter(|&i| keep(i))
+        // One count of ADC noise: without any, every channel would look stuck after 64 frames.
+        .map(|i| frame(i, 15, [12.5, 0.0, 0.0], [0.0, 0.0, -1.0], 1.0, &mut rng))
+        .collect();
+    let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
+    let out = run(&mut p, &stream(&frames));
+    let nav: Vec<NavReport> = out
+        .iter()
+        .filter_map(|o| match o {
+            Output::Telemetry(Telemetry::Nav(n)) => Some(*n),
+            _ => None,
+        })
+        .collect();
+    let fused = fused(&out);
+    assert_eq!(nav.len(), fused.len());
+    let period_s = 16.0 / 9676.8;
+    for (k, n) in nav.iter().enumerate() {
+        assert_eq!(n.seq, fused[k].seq);
+        let lost = if k == 1 { 3 } else { 0 };
+        // 32 frames received per report; the interval also spans the lost ones.
+        assert_eq!(
+            (n.frames, n.bridged, n.clipped),
+            (32 + lost, lost, 0),
+            "interval {k}"
+        );
+        // Its frame periods, exactly (rounded to µs): the interval ends where the next begins.
+        let dt_s = f64::from(n.dt_us) * 1e-6;
+        assert!(
+            (dt_s - f64::from(n.frames) * period_s).abs() < 2e-6,
+            "{k}: {dt_s}"
+        );
+        if k > 0 {
+            assert_eq!(n.t_us, nav[k - 1].t_us + u64::from(nav[k - 1].dt_us));
+        }
+        let w = 12.5f64.to_radians();
+        let dth = n.dtheta_nrad.map(|x| x as f64 * 1e-9);
+        // Noise: 1 count = 1/160 °/s per sample and group, ≈ 5e-7 rad over an interval of the cluster mean.
+        assert!((dth[0] - w * dt_s).abs() < 3e-6, "{k}: {dth:?}");
+        assert!(dth[1].abs() < 3e-6 && dth[2].abs() < 3e-6, "{k}: {dth:?}");
+        // ΔV in the body frame at the interval's start: ∫ R_x(ωt)·(0, 0, −g) dt ≈ (0, g ω dt²/2, −g dt).
+        let g = 9.80665;
+        let dv = n.dv_umps.map(|x| x as f64 * 1e-6);
+        assert!((dv[2] + g * dt_s).abs() < 3e-5, "{k}: {dv:?}");
+        assert!(
+            (dv[1] - g * w * dt_s * dt_s / 2.0).abs() < 3e-5,
+            "{k}: {dv:?}"
+        );
+        assert!(dv[0].abs() < 3e-5, "{k}: {dv:?}");
+    }
+}
