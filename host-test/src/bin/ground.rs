@@ -121,6 +121,16 @@ struct SimulateArgs {
     /// Number of samples (instead of --hours).
     #[arg(long, conflicts_with = "hours")]
     samples: Option<u64>,
+    /// Duration in seconds (instead of --hours or --samples).
+    #[arg(long, conflicts_with_all = ["hours", "samples"])]
+    seconds: Option<f64>,
+    /// A motion of the board: `coning:half_angle_deg=A,freq_hz=F` or
+    /// `sculling:angle_amp_deg=A,accel_amp_g=B,freq_hz=F` (docs in host_test::sim::motion).
+    #[arg(long, value_parser = |s: &str| host_test::sim::motion::Motion::parse(s))]
+    motion: Option<host_test::sim::motion::Motion>,
+    /// No sensor noise and the exact nominal calibration (the preset and effects are ignored).
+    #[arg(long)]
+    noiseless: bool,
     /// Output rate, Hz (frames carry the decimation that gives it from the FPGA base rate).
     #[arg(long, default_value_t = 18.9)]
     rate: f64,
@@ -883,10 +893,23 @@ fn simulate(a: SimulateArgs) -> Result<()> {
             seedfit::seed_config_with(&seedfit::fit().map_err(sim_err)?, a.seed).map_err(sim_err)?
         }
     };
+    if a.noiseless {
+        cfg = sim::SimConfig::new(
+            a.seed,
+            a.rate,
+            cfg.samples,
+            [sim::NoiseParams::default(); sim::CHANNELS],
+        );
+    }
+    cfg.motion = a.motion;
     let frame_log = simcli::check_rates(&a.out, a.rate, a.base_rate_hz)?;
     mhz(a.base_rate_hz).context("--base-rate-hz")?;
     cfg.rate_hz = a.rate;
     let samples = match (a.samples, a.hours) {
+        _ if a.seconds.is_some() => match a.seconds {
+            Some(s) if s.is_finite() && s > 0.0 => (s * a.rate).round(),
+            _ => bail!("--seconds must be a positive number"),
+        },
         (Some(n), _) => n as f64,
         (None, Some(h)) if h.is_finite() && h > 0.0 => (h * 3600.0 * a.rate).round(),
         (None, Some(h)) => bail!("--hours must be a positive number, found {h}"),

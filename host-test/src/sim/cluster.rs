@@ -235,8 +235,10 @@ pub struct SimConfig {
     pub outliers: Vec<Outlier>,
     /// True rate input, °/s (static).
     pub rate_dps: [f64; 3],
-    /// True specific force, g (static; default +1 g on z, i.e. z up).
+    /// True specific force, g (static; default +1 g on z, i.e. z up); with a `motion`, fixed in the reference frame.
     pub accel_g: [f64; 3],
+    /// A motion of the board (coning, sculling) on top of `rate_dps`; `None` = static.
+    pub motion: Option<super::motion::Motion>,
     /// Spread of the true calibration between groups.
     pub cal: CalSpread,
     /// Seed of the board's true calibration; `None` = `seed`. Records with the same `board_seed` and different
@@ -264,6 +266,7 @@ impl SimConfig {
             outliers: Vec::new(),
             rate_dps: [0.0; 3],
             accel_g: [0.0, 0.0, 1.0],
+            motion: None,
             cal: CalSpread::NONE,
             board_seed: None,
             frames: FrameOpts::default(),
@@ -763,6 +766,16 @@ impl Simulator {
                     let idx = self.next + k as u64;
                     *x += ramp * idx as f64 + if idx >= at { step } else { 0.0 };
                 }
+            }
+            if let Some(m) = self.cfg.motion {
+                // The sample at t = (index) · Δt sees the motion then (and the static rate on top).
+                let (g, c) = (si / CHANNELS, si % CHANNELS);
+                for (x, &ts) in r.iter_mut().zip(&out.t_s) {
+                    let (rate, accel) = m.at(ts, self.cfg.accel_g);
+                    let rate = core::array::from_fn(|i| rate[i] + self.cfg.rate_dps[i]);
+                    *x += self.cal[g].readings(rate, accel)[c];
+                }
+                continue;
             }
             let inp = self.input[si / CHANNELS][si % CHANNELS];
             if inp != 0.0 {

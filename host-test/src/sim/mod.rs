@@ -11,6 +11,7 @@
 //! - [`calib`]: the true per-group calibration ([`TrueGroupCal`]) applied inversely through
 //!   `shared::calib::board::nominal_codes`, and its fixed-point form for the ground.
 //! - [`preset`]: parameters reproducing the seed paper's single-sensor Tables 1 and 2.
+//! - [`motion`]: coning and sculling motions of the board (true attitude, body rate, specific force).
 //!
 //! Units everywhere: gyro quantities in °/s (densities in (°/s)/√Hz etc.), accelerometer quantities in g, time in
 //! s, temperature in °C. A *sensor* is one raw ADC channel of one group ([`Channel`]); an *axis* is one calibrated
@@ -21,6 +22,7 @@
 
 pub mod calib;
 pub mod cluster;
+pub mod motion;
 pub mod noise;
 pub mod preset;
 #[cfg(test)]
