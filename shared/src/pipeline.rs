@@ -274,7 +274,6 @@ pub struct Pipeline<B> {
     cal_crc: Option<u32>,
     arrival_us: Option<u64>,
     last_arrival_us: Option<u64>,
-    last_seq: Option<u16>,
     time_gaps: u32,
     mode: Mode,
     /// Frame time of the last frame, µs.
@@ -331,7 +330,6 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             cal_crc: table_crc(&CalibrationTable::factory()),
             arrival_us: None,
             last_arrival_us: None,
-            last_seq: None,
             time_gaps: 0,
             mode: Mode::Stream,
             last_t_us: None,
@@ -598,36 +596,34 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// can see.
     fn missing_before(&mut self, d: &Decoded) -> u32 {
         let by_seq = d.missing_before;
-        let seq = d.frame.seq;
         let (now, last) = (self.arrival_us, self.last_arrival_us);
-        let last_seq = self.last_seq.replace(seq);
         self.last_arrival_us = now;
-        let (Some(now), Some(last), Some(n), Some(last_seq)) =
-            (now, last, self.clock.decimation(), last_seq)
-        else {
+        let (Some(now), Some(last), Some(n)) = (now, last, self.clock.decimation()) else {
             return by_seq;
         };
         if n != d.frame.decimation {
             return by_seq; // a new rate: the clock restarts its statistics and ignores gaps anyway
         }
-        // Frame period in ns: (N + 1) · 10¹² / base rate in mHz, ≥ 1 (a rate of 0 counts as 1 mHz). In u128 nothing
-        // can wrap: the gap is < 2⁶⁴ µs, the period < 2¹⁶ · 10¹².
-        let rate = NonZeroU128::new(u128::from(self.config.fpga_base_rate_mhz))
-            .unwrap_or(NonZeroU128::MIN);
-        let period_ns = u128::from(n)
-            .wrapping_add(1)
-            .wrapping_mul(1_000_000_000_000)
-            / rate;
-        let period_ns = NonZeroU128::new(period_ns).unwrap_or(NonZeroU128::MIN);
-        let gap_ns = u128::from(now.saturating_sub(last)).wrapping_mul(1000);
-        let frames = gap_ns.wrapping_add(period_ns.get() >> 1) / period_ns;
-        let by_time = u32::try_from(frames.saturating_sub(1)).unwrap_or(u32::MAX);
-        let restart = seq.wrapping_sub(last_seq.wrapping_add(1)) >= 0x8000;
+        // The arrival gap in frames, rounded: gap · rate / ((N + 1) · 10⁹), both sides in units of 10⁻⁹ base ticks
+        // (µs · mHz). In u128 nothing can wrap: the gap is < 2⁶⁴ µs and the rate < 2⁶⁴ mHz.
+        let gap = u128::from(now.saturating_sub(last))
+            .wrapping_mul(u128::from(self.config.fpga_base_rate_mhz));
+        let frame = u128::from(n).wrapping_add(1).wrapping_mul(1_000_000_000);
+        let rounded = gap.wrapping_add(frame >> 1);
         let slack = u32::from(self.config.arrival_slack_frames);
-        let missing = if restart {
+        // Without a restart, the arrival gap only matters once it could hide a wrap of the counter (the test
+        // below needs ≥ 2¹⁶ + 1 − slack frames): the usual frame ends here, without a 128-bit division.
+        let wrap_min = u128::from((1u32 << 16).wrapping_add(1).saturating_sub(slack));
+        if !d.restarted && rounded < wrap_min.wrapping_mul(frame) {
+            return by_seq;
+        }
+        // `frame` ≥ 10⁹: not zero.
+        let frames = rounded / NonZeroU128::new(frame).unwrap_or(NonZeroU128::MIN);
+        let by_time = u32::try_from(frames.saturating_sub(1)).unwrap_or(u32::MAX);
+        let missing = if d.restarted {
             by_time
         } else {
-            // The counter is right modulo 2¹⁶; time says how many wraps (none unless the gap nears 2¹⁶ frames).
+            // The counter is right modulo 2¹⁶; time says how many wraps.
             let wraps = by_time.saturating_sub(by_seq).saturating_add(slack) >> 16;
             by_seq.saturating_add(wraps << 16)
         };

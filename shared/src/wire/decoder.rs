@@ -35,6 +35,9 @@ pub struct Decoded {
     /// Frames missing between the previous accepted frame and this one (0 when contiguous, or for the first frame
     /// and after a restart).
     pub missing_before: u32,
+    /// The sequence counter jumped back by less than 2¹⁵ (counted in `seq_restarts`): the FPGA restarted, or a gap of
+    /// 2¹⁵ frames or more hid the count.
+    pub restarted: bool,
 }
 
 /// Streaming frame decoder (see the module documentation).
@@ -198,7 +201,7 @@ impl FrameDecoder {
             c.resyncs = c.resyncs.wrapping_add(1);
             self.skipped_since_lock = false;
         }
-        let mut missing_before = 0;
+        let (mut missing_before, mut restarted) = (0, false);
         if let Some(last) = self.last_seq {
             let gap = frame.seq.wrapping_sub(last.wrapping_add(1));
             if gap < 0x8000 {
@@ -206,12 +209,14 @@ impl FrameDecoder {
                 c.frames_dropped = c.frames_dropped.wrapping_add(missing_before);
             } else {
                 c.seq_restarts = c.seq_restarts.wrapping_add(1);
+                restarted = true;
             }
         }
         self.last_seq = Some(frame.seq);
         Decoded {
             frame,
             missing_before,
+            restarted,
         }
     }
 }
