@@ -46,8 +46,8 @@ struct Args {
     #[arg(long)]
     fast: bool,
     /// CSP header version on the bus: 1 (libcsp 1.x, Yamcs) or 2 (libcsp 2.x's default, 14-bit addresses).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
-    csp_version: u8,
+    #[arg(long, default_value = "1")]
+    csp_version: CspVersion,
     /// Our CSP address (v1 ≤ 31, v2 ≤ 16383).
     #[arg(long, default_value_t = BusConfig::DEFAULT.addr)]
     addr: u16,
@@ -71,15 +71,11 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args) -> Result<(), String> {
-    let version = if args.csp_version == 2 {
-        CspVersion::V2
-    } else {
-        CspVersion::V1
-    };
+    let version = args.csp_version;
     if args.addr.max(args.ground_addr) > version.max_addr() {
         return Err(format!(
             "CSP v{} addresses are at most {} (--addr {}, --ground-addr {})",
-            args.csp_version,
+            version.number(),
             version.max_addr(),
             args.addr,
             args.ground_addr
@@ -123,7 +119,7 @@ fn run(args: &Args) -> Result<(), String> {
             "at the log's frame rate"
         },
         args.bus.display(),
-        args.csp_version,
+        version.number(),
         flash_path.display()
     );
 

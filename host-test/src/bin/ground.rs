@@ -233,17 +233,8 @@ struct ReplayArgs {
     #[arg(long, default_value_t = 9676.8)]
     base_rate_hz: f64,
     /// CSP header version on the bus (1: libcsp 1.x, Yamcs; 2: libcsp 2.x's default).
-    #[arg(long, default_value = "1", value_parser = parse_csp_version)]
+    #[arg(long, default_value = "1")]
     csp_version: CspVersion,
-}
-
-/// `--csp-version 1|2`.
-fn parse_csp_version(s: &str) -> Result<CspVersion, String> {
-    match s {
-        "1" => Ok(CspVersion::V1),
-        "2" => Ok(CspVersion::V2),
-        _ => Err(format!("CSP header version must be 1 or 2, not {s}")),
-    }
 }
 
 #[derive(clap::Args)]
@@ -260,7 +251,7 @@ struct DecodeArgs {
     #[arg(long)]
     nav: Option<PathBuf>,
     /// CSP header version on the bus (1 or 2).
-    #[arg(long, default_value = "1", value_parser = parse_csp_version)]
+    #[arg(long, default_value = "1")]
     csp_version: CspVersion,
 }
 

@@ -46,7 +46,27 @@ pub enum CspVersion {
     V2,
 }
 
+/// `"1"` or `"2"`, as command lines and configuration files name the versions.
+impl core::str::FromStr for CspVersion {
+    type Err = &'static str;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim() {
+            "1" => Ok(Self::V1),
+            "2" => Ok(Self::V2),
+            _ => Err("the CSP header version is 1 or 2"),
+        }
+    }
+}
+
 impl CspVersion {
+    /// The version's number: 1 or 2.
+    pub const fn number(self) -> u8 {
+        match self {
+            Self::V1 => 1,
+            Self::V2 => 2,
+        }
+    }
+
     /// Header length, bytes.
     pub const fn header_len(self) -> usize {
         match self {
