@@ -291,17 +291,18 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
         }
     }
 
-    /// The housekeeping report now (the pipeline's time gaps and link overruns from `p`; the core's load over the
-    /// period `load`, if measured).
+    /// The housekeeping report at `now` (the pipeline's time gaps and link overruns from `p`; the core's load over
+    /// the period `load` and the MCU's (temperature, VDDA) `sensors`, if measured).
     fn housekeeping(
         &self,
         p: &Pipeline<B>,
+        now: Instant,
         load: Option<(u16, Option<u32>)>,
+        sensors: Option<(i16, u16)>,
     ) -> HousekeepingReport {
         let c = self.counters();
-        let sensors = self.mcu_sensors.and_then(|read| read());
         HousekeepingReport {
-            uptime_ms: Instant::now().as_millis(),
+            uptime_ms: now.as_millis(),
             fw_commit: FW_COMMIT.0,
             fw_dirty: FW_COMMIT.1,
             reset_flags: self.boot.reset_flags,
@@ -659,6 +660,8 @@ where
     let mut n = 0u32;
     loop {
         ticker.next().await;
+        // The ADC conversions before the pipeline is locked: the link task need not wait for them.
+        let sensors = app.mcu_sensors.and_then(|read| read());
         let mut p = app.pipeline.lock().await;
         let link = *p.link_counters();
         let now = Instant::now();
@@ -687,7 +690,7 @@ where
         });
         (last_busy, last_at) = (busy, now);
         last_frames = Some(link.frames);
-        let hk = app.housekeeping(&p, load);
+        let hk = app.housekeeping(&p, now, load, sensors);
         app.route(&mut p, Output::Telemetry(Telemetry::Housekeeping(hk)));
         app.count(Counter::Housekeeping);
         if !p.calibration_intact() {
