@@ -27,7 +27,7 @@ use shared::bus::BusConfig;
 use shared::bus::csp::CspVersion;
 use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
 use shared::storage::CalStore;
-use shared::wire::FrameDecoder;
+use shared::wire::{FrameClock, FrameDecoder};
 
 /// Runs the firmware's tasks on the PC against a frame log and a serial bus.
 #[derive(Parser, Debug)]
@@ -165,8 +165,8 @@ async fn feed(board: &Board, frames: &[u8], fast: bool, base_rate_mhz: u64) {
         let n = FrameDecoder::new()
             .decode(&mut probe)
             .map_or(15, |d| d.frame.decimation);
-        // Frame period: (N + 1) / base rate.
-        let period_us = (u64::from(n) + 1) * 1_000_000_000 / base_rate_mhz.max(1);
+        // Frame period: N + 1 base ticks.
+        let period_us = FrameClock::ticks_to_us(u64::from(n) + 1, base_rate_mhz);
         node::fpga_play(board, frames, Duration::from_micros(period_us)).await;
     }
     log::info!("sitl: frame log ended; the FPGA link is silent now");

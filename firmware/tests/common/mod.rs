@@ -250,6 +250,8 @@ pub fn frames(n: usize) -> Vec<u8> {
 
 /// The frame period at the default decimation (N = 15), µs (exactly 1653.439… µs; rounded).
 pub fn frame_period() -> Duration {
-    let cfg = PipelineConfig::DEFAULT;
-    Duration::from_micros(16 * 1_000_000_000 / cfg.fpga_base_rate_mhz)
+    Duration::from_micros(shared::wire::FrameClock::ticks_to_us(
+        16,
+        PipelineConfig::DEFAULT.fpga_base_rate_mhz,
+    ))
 }
