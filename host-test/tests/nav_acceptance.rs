@@ -8,7 +8,7 @@
 //! property of the ADC, not of the integration. The acceptance runs therefore add 1 LSB of white noise as dither
 //! (`dither`); the noiseless numbers are printed beside them.
 use host_test::replay::{ReplayOptions, replay};
-use host_test::sim::motion::{M3, Motion, mul_t};
+use host_test::sim::motion::{M3, Motion, mul, mul_t};
 use host_test::sim::{CHANNELS, NoiseParams, SimConfig};
 use host_test::simcli;
 use shared::bus::BusConfig;
@@ -74,10 +74,6 @@ fn run(bytes: &[u8]) -> (Vec<NavReport>, Vec<FusedReport>) {
         _ => None,
     });
     (nav.collect(), fused.collect())
-}
-
-fn mul(a: &M3, b: &M3) -> M3 {
-    core::array::from_fn(|i| core::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
 }
 
 fn transpose(a: &M3) -> M3 {

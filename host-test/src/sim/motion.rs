@@ -33,7 +33,8 @@ pub enum Motion {
     },
 }
 
-fn mul(a: &M3, b: &M3) -> M3 {
+/// `a b`.
+pub fn mul(a: &M3, b: &M3) -> M3 {
     core::array::from_fn(|i| core::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
 }
 
