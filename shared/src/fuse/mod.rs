@@ -10,8 +10,9 @@
 //!    ~11 % and still follows a change of the spread (dynamics, scale-factor errors) within 26 ms at 604.8 Hz.
 //!    Outlier tests need at least 3 candidates.
 //! 2. **Noise estimates**: for every used sensor, the residual from the median is differenced sample to sample,
-//!    which removes the common signal and the sensor's own bias, and `Δr²/2` is averaged by an exponential moving
-//!    average over 2^`noise_shift` samples: an estimate of the sensor's white-noise variance.
+//!    which removes the common signal and the sensor's own bias, and `Δr²/2` is averaged over 2^`noise_shift`
+//!    samples: an estimate of the sensor's white-noise variance. The squares are summed per block of
+//!    `weight_interval` samples and each block moves an exponential average by `n / 2^noise_shift` (see `NoiseEst`).
 //! 3. **Mean**: the equal-weight mean (the seed paper's), or the inverse-variance weighted mean with weights
 //!    `w_i = 2¹⁶ · σ²_min / σ²_i` (Q16, the best sensor has 2¹⁶), recomputed every `weight_interval` samples once
 //!    every sensor's estimate has settled; equal weights until then. Division rounds half away from zero.
@@ -178,43 +179,58 @@ impl FaultCounts {
 }
 
 /// Noise estimator of one sensor axis.
+///
+/// Per sample only a sum grows: `block_sum += min(|Δr|, 2²⁴)²` (one `UMLAL` on the Cortex-M4). Every
+/// `weight_interval` samples the block is folded into the exponential average: the block's mean `Δr²/2` moves `var`
+/// by the fraction `n / 2^shift` of the way (n = the block's differences, at most the whole way), which weighs every
+/// difference as a per-sample average over 2^shift samples would, to first order. The per-sample average cost
+/// 64 Cortex-M4 instructions per sensor axis (a 64-bit subtraction, a run-time 64-bit shift, a saturating counter),
+/// this 20.
 #[derive(Clone, Copy, Debug)]
 struct NoiseEst {
-    /// EWMA of Δr²/2, (output unit)².
+    /// Exponential average of Δr²/2, (output unit)², ≤ [`VAR_LIMIT`].
     var: u64,
-    /// Updates, saturating.
-    updates: u32,
-    /// Residual from the median in the last sample that used the sensor.
+    /// Σ min(|Δr|, 2²⁴)² of the current block: ≤ 65 535 terms of ≤ 2⁴⁸, < 2⁶⁴.
+    block_sum: u64,
+    /// Residual from the median in the last sample (read only when the sensor was used in it).
     last_resid: i32,
+    /// Differences folded into `var`, saturating.
+    updates: u16,
+    /// Differences in the current block (≤ `weight_interval` ≤ 65 535).
+    block_n: u16,
 }
 
 impl NoiseEst {
     const NEW: Self = Self {
         var: 0,
-        updates: 0,
+        block_sum: 0,
         last_resid: 0,
+        updates: 0,
+        block_n: 0,
     };
 
-    /// Averages in `Δr²/2` for the new residual `resid` (`last_resid` valid) with weight 2^−`shift`;
-    /// `round` = 2^`shift` − 1 (`shift` ≤ 31).
+    /// Folds the current block into `var` with weight `block_n / 2^shift` (at most 1) and starts a new block.
     ///
-    /// Plain arithmetic, so that builds with overflow checks keep checking the bound: `sample` ≤ [`VAR_LIMIT`] = 2⁴⁷,
-    /// and `var` stays in [0, 2⁴⁷] (it starts at 0 and each update moves it toward a `sample`, not past it), so
-    /// `diff`, `step` and the new `var` lie in [−2⁴⁷, 2⁴⁷] and `diff + round` < 2⁴⁸: nothing overflows `i64`.
+    /// Plain arithmetic, so that builds with overflow checks keep checking the bounds: the block mean is
+    /// `block_sum / (2 · block_n)` ≤ 2⁴⁸ / 2 = [`VAR_LIMIT`]; `var` stays in [0, VAR_LIMIT] (it moves toward a mean,
+    /// not past it), so `diff` ∈ [−2⁴⁷, 2⁴⁷] and `diff · n` < 2⁴⁷ · 2³¹ = 2⁷⁸ fits `i128`.
     #[allow(clippy::arithmetic_side_effects)]
-    fn update(&mut self, resid: i32, shift: u32, round: i64) {
-        // min(d²/2, VAR_LIMIT) with VAR_LIMIT = 2⁴⁷ = (2²⁴)²/2 equals (min(|d|, 2²⁴))²/2: one 32 × 32 → 64-bit
-        // multiply (UMULL on the Cortex-M4) instead of a 64-bit square and compare.
-        let d = (i64::from(resid) - i64::from(self.last_resid))
-            .unsigned_abs()
-            .min(VAR_LIMIT_ROOT) as u32;
-        let sample = u64::from(d) * u64::from(d) / 2;
-        // var += (sample − var) / 2^shift, the quotient rounded toward zero (a negative dividend is biased by
-        // 2^shift − 1 before the arithmetic shift); both terms ≤ 2⁴⁷, so everything fits in i64. Branch-free.
-        let diff = sample as i64 - self.var as i64;
-        let step = (diff + ((diff >> 63) & round)) >> shift;
-        self.var = (self.var as i64 + step) as u64;
-        self.updates = self.updates.saturating_add(1);
+    fn fold(&mut self, shift: u32) {
+        let n = u64::from(self.block_n);
+        let Some(den) = NonZeroU64::new(2 * n) else {
+            return;
+        };
+        let mean = self.block_sum / den;
+        let diff = i128::from(mean) - i128::from(self.var);
+        // n ≥ 2^shift: the block alone is the estimate; otherwise move by n / 2^shift, rounded toward zero.
+        let step = if n >> shift != 0 {
+            diff
+        } else {
+            diff * i128::from(n) / (1i128 << shift)
+        };
+        self.var = (i128::from(self.var) + step) as u64;
+        self.updates = self.updates.saturating_add(self.block_n);
+        (self.block_sum, self.block_n) = (0, 0);
     }
 }
 
@@ -225,31 +241,44 @@ struct AxisState<const G: usize> {
     est: [NoiseEst; G],
     /// Groups whose `last_resid` is from the previous sample.
     resid_valid: u32,
+    /// Groups whose estimate has settled (seen 2^`noise_shift` differences, at most 65 535).
+    settled: u32,
     /// Weights, Q16.
     weight_q16: [u32; G],
 }
 
 impl<const G: usize> AxisState<G> {
+    /// Ends every estimator's block (see [`NoiseEst`]) and updates `settled`.
+    fn fold(&mut self, shift: u32) {
+        let settled_at = (1u32 << shift.min(31)).min(u32::from(u16::MAX));
+        let mut settled = 0;
+        for (g, e) in self.est.iter_mut().enumerate() {
+            e.fold(shift);
+            settled |= u32::from(u32::from(e.updates) >= settled_at) << g;
+        }
+        self.settled = settled;
+    }
+
     const NEW: Self = Self {
         est: [NoiseEst::NEW; G],
         resid_valid: 0,
+        settled: 0,
         weight_q16: [1 << 16; G],
     };
 }
 
 /// Raw-channel watch of one group: the last code of each channel and how often it repeated since it changed
-/// (saturating at `u16::MAX`). Eight lanes for the seven channels, so that the update is two 4-lane vector
-/// operations where the target has them; lane 7 is padding, never reported.
+/// (saturating at `u16::MAX`).
 #[derive(Clone, Copy, Debug)]
 struct RawWatch {
-    last: [i32; RAW_LANES],
-    repeats: [u32; RAW_LANES],
+    last: [i32; RAW_CHANNELS],
+    repeats: [u16; RAW_CHANNELS],
 }
 
 impl RawWatch {
     const NEW: Self = Self {
-        last: [i32::MIN; RAW_LANES],
-        repeats: [0; RAW_LANES],
+        last: [i32::MIN; RAW_CHANNELS],
+        repeats: [0; RAW_CHANNELS],
     };
 }
 
@@ -290,8 +319,6 @@ impl AxisScale {
 }
 
 const RAW_CHANNELS: usize = crate::calib::GYRO_RAW + crate::calib::ACCEL_RAW;
-/// Lanes of a [`RawWatch`]: the raw channels (an eighth padding lane cost 0.5 k Cortex-M4 instructions per frame).
-const RAW_LANES: usize = RAW_CHANNELS;
 /// Raw channels of the gyros, as bits over channels.
 const GYRO_CHANNELS: u32 = (1 << crate::calib::GYRO_RAW) - 1;
 /// Raw channels of the accelerometer.
@@ -428,8 +455,10 @@ fn sort16(v: &mut [i32; 16]) {
         mut v14,
         mut v15,
     ] = *v;
+    // A compare-exchange: the minimum, then the maximum as `a ^ b ^ min` (one condition: `mov, cmp, it, mov, eor,
+    // eor` on the Cortex-M4, where `(min, max)` compiles to two IT blocks of opposite conditions).
     macro_rules! layer {
-        ($(($i:ident, $j:ident)),*) => { $((($i, $j) = ($i.min($j), $i.max($j)));)* };
+        ($(($i:ident, $j:ident)),*) => { $({ let lo = $i.min($j); ($i, $j) = (lo, $i ^ $j ^ lo); })* };
     }
     layer!(
         (v0, v13),
@@ -533,8 +562,11 @@ impl<const G: usize> Fusion<G> {
         &self.config
     }
 
-    /// Changes the parameters; the noise estimates are kept.
+    /// Changes the parameters; the noise estimates are kept (their current blocks are folded in first, so that no
+    /// block outlasts a `weight_interval`).
     pub fn set_config(&mut self, config: FusionConfig) {
+        let shift = u32::from(self.config.noise_shift.min(31));
+        self.axes.iter_mut().for_each(|a| a.fold(shift));
         self.config = config;
     }
 
@@ -543,10 +575,12 @@ impl<const G: usize> Fusion<G> {
         self.faults.get(group).copied()
     }
 
-    /// Running white-noise variance estimate of `group`'s `axis`, (output unit)², once settled.
+    /// Running white-noise variance estimate of `group`'s `axis`, (output unit)², once settled (2^`noise_shift`
+    /// differences, at most 65 535, seen); it changes at the end of each block of `weight_interval` samples.
     pub fn noise_var(&self, group: usize, axis: usize) -> Option<u64> {
-        let e = self.axes.get(axis)?.est.get(group)?;
-        (e.updates >= 1 << self.config.noise_shift.min(31)).then_some(e.var)
+        let state = self.axes.get(axis)?;
+        let e = state.est.get(group)?;
+        (state.settled >> group & 1 != 0).then_some(e.var)
     }
 
     /// Current weight of `group`'s `axis`, Q16 (the best sensor has 2¹⁶).
@@ -563,8 +597,20 @@ impl<const G: usize> Fusion<G> {
     ) -> FusedSample {
         let mut out = FusedSample::default();
         // Sensor-level exclusion, bitmasks over groups per kind [gyro, accel].
-        let stuck_repeats = u32::from(self.config.stuck_window.max(2)).saturating_sub(1);
+        let stuck_repeats = self.config.stuck_window.max(2).saturating_sub(1);
+        // code ≤ raw_min or code ≥ raw_max  ⇔  (code − raw_min − 1) mod 2³² ≥ span = max(raw_max − raw_min − 1, 0):
+        // one subtraction and one unsigned comparison. For raw_min < code the difference is exact; for code ≤ raw_min
+        // it wraps to 2³² + code − raw_min − 1, which is ≥ span because code ≥ −2³¹ > raw_max − 2³².
         let (raw_min, raw_max) = (table.raw_min, table.raw_max);
+        let above_min = raw_min.wrapping_add(1);
+        // Differences of two `i32` in `i64`: no wrap; the result is in [0, 2³² − 2].
+        let span = u32::try_from(
+            i64::from(raw_max)
+                .wrapping_sub(i64::from(raw_min))
+                .wrapping_sub(1)
+                .max(0),
+        )
+        .unwrap_or(u32::MAX);
         let (mut sat, mut stuck) = ([0u32; 2], [0u32; 2]);
         for (g, (r, watch)) in raw.iter().zip(self.raw.iter_mut()).enumerate() {
             let [g0, g1, g2, g3] = r.gyro;
@@ -577,14 +623,15 @@ impl<const G: usize> Fusion<G> {
                 .zip(watch.repeats.iter_mut())
                 .enumerate()
             {
-                // Branch-free: + 1 (saturating) where the code repeats, 0 where it changed. `repeats` ≤ u16::MAX (this
-                // `min`, every sample): the increment cannot wrap.
-                *repeats = repeats.wrapping_add(1).min(u16::MAX.into())
-                    & u32::from(code == *last).wrapping_neg();
-                *last = code;
-                ch_stuck |= u32::from(*repeats >= stuck_repeats) << ch;
                 // = table.saturated(code)
-                ch_sat |= u32::from(code <= raw_min || code >= raw_max) << ch;
+                ch_sat |= u32::from(code.wrapping_sub(above_min) as u32 >= span) << ch;
+                // A live channel changes almost every sample: that path only resets the count.
+                if code == *last {
+                    *repeats = repeats.saturating_add(1);
+                    ch_stuck |= u32::from(*repeats >= stuck_repeats) << ch;
+                } else {
+                    (*last, *repeats) = (code, 0);
+                }
             }
             for ((sat, stuck), channels) in sat
                 .iter_mut()
@@ -610,11 +657,10 @@ impl<const G: usize> Fusion<G> {
             }
         }
 
-        let recompute = self.config.mode == FusionMode::InverseVariance
-            && (!self.weights_ready
-                || self
-                    .samples
-                    .is_multiple_of(u32::from(self.config.weight_interval.max(1))));
+        // Noise blocks end, and weights are recomputed, every `weight_interval` samples.
+        let fold = self
+            .samples
+            .is_multiple_of(u32::from(self.config.weight_interval.max(1)));
         let mut outlier = [0u32; 2];
         for (a, ((value, used), used_mask)) in out
             .axes
@@ -628,8 +674,7 @@ impl<const G: usize> Fusion<G> {
             let column: [i32; G] =
                 core::array::from_fn(|g| axes.get(g).and_then(|x| x.get(a)).copied().unwrap_or(0));
             let candidates = Self::ALL & !excluded.get(kind).copied().unwrap_or(0);
-            let (n, fused, out_mask, mask) =
-                self.fuse_axis(a, &column, candidates, kind, recompute);
+            let (n, fused, out_mask, mask) = self.fuse_axis(a, &column, candidates, kind, fold);
             (*value, *used, *used_mask) = (fused, n, mask);
             if let Some(o) = outlier.get_mut(kind) {
                 *o |= out_mask;
@@ -665,7 +710,7 @@ impl<const G: usize> Fusion<G> {
         x: &[i32; G],
         candidates: u32,
         kind: usize,
-        recompute: bool,
+        fold: bool,
     ) -> (u8, i32, u32, u32) {
         let Some(state) = self.axes.get_mut(a) else {
             return (0, 0, 0, 0);
@@ -673,6 +718,9 @@ impl<const G: usize> Fusion<G> {
         let n = candidates.count_ones() as usize;
         if n == 0 {
             state.resid_valid = 0;
+            if fold {
+                state.fold(u32::from(self.config.noise_shift.min(31)));
+            }
             return (0, 0, 0, 0);
         }
         // Candidates sorted, then padding that sorts after them.
@@ -718,33 +766,33 @@ impl<const G: usize> Fusion<G> {
         }
         let used = candidates & !outliers;
 
-        // Noise estimates of the sensors used.
+        // Noise estimates of the sensors used: a difference where the sensor was also used in the previous sample.
+        // Branch-free over all groups (the usual case uses them all).
         let shift = u32::from(self.config.noise_shift.min(31));
-        // shift ≤ 31: 2^shift − 1 ≥ 0 cannot wrap.
-        let (round, settled) = ((1i64 << shift).wrapping_sub(1), 1u32 << shift);
-        let valid = state.resid_valid;
-        // Whether every used estimate has settled matters only for weighted means.
-        let weighted_mode = self.config.mode == FusionMode::InverseVariance;
-        let mut all_settled = weighted_mode;
-        let mut rest = used;
-        while rest != 0 {
-            let g = rest.trailing_zeros() as usize;
-            // Clears the lowest set bit; `rest` ≠ 0, so this cannot wrap.
-            rest &= rest.wrapping_sub(1);
-            let (Some(e), Some(&v)) = (state.est.get_mut(g), x.get(g)) else {
-                break;
-            };
+        let diffs = state.resid_valid & used;
+        for (g, (e, &v)) in state.est.iter_mut().zip(x).enumerate() {
             // = (x − median) clamped to i32
             let resid = v.saturating_sub(median);
-            if valid >> g & 1 != 0 {
-                e.update(resid, shift, round);
-            }
+            let take = diffs >> g & 1;
+            // |Δr| < 2³², clamped to 2²⁴ (`VAR_LIMIT_ROOT`): the square is one 32 × 32 → 64-bit multiply.
+            let d = resid.abs_diff(e.last_resid).min(VAR_LIMIT_ROOT as u32) & take.wrapping_neg();
+            // ≤ 2⁴⁸ per term and ≤ `weight_interval` ≤ 65 535 terms per block (`fold` resets both): no wrap.
+            e.block_sum = e
+                .block_sum
+                .wrapping_add(u64::from(d).wrapping_mul(u64::from(d)));
+            e.block_n = e.block_n.wrapping_add(take as u16);
+            // Read next sample only if the sensor is used now (`resid_valid` below).
             e.last_resid = resid;
-            all_settled &= e.updates >= settled;
         }
         state.resid_valid = used;
-        // Weights (`recompute` implies the weighted mode).
-        if recompute && all_settled {
+        let weighted_mode = self.config.mode == FusionMode::InverseVariance;
+        if fold {
+            state.fold(shift);
+        }
+        // Whether every used estimate has settled matters only for weighted means.
+        let all_settled = weighted_mode && used & !state.settled == 0;
+        // Weights, at the end of a block, or every sample until the first weights are in use.
+        if weighted_mode && (fold || !self.weights_ready) && all_settled {
             let var_min = state
                 .est
                 .iter()
