@@ -587,14 +587,17 @@ where
                 continue;
             }
         };
-        let table = *app.pipeline.lock().await.calibration();
-        let outcome = match store.store(&table, &mut scratch) {
+        // The store is synchronous (the CPU stalls on the erase anyway), so the lock is held through it and the
+        // table is not copied into this task's state (1.8 KiB of RAM).
+        let (cal_id, result) = {
+            let pipeline = app.pipeline.lock().await;
+            let table = pipeline.calibration();
+            (table.cal_id, store.store(table, &mut scratch))
+        };
+        let outcome = match result {
             Ok(seq) => {
                 app.count(Counter::CalStores);
-                info!(
-                    "calibration: id {:?} stored as record {:?}",
-                    table.cal_id, seq
-                );
+                info!("calibration: id {:?} stored as record {:?}", cal_id, seq);
                 StoreOutcome::Stored(seq)
             }
             Err(e) => {

@@ -76,18 +76,18 @@ pub struct GroupCal {
     pub accel_bias_q12: [i32; ACCEL_RAW],
 }
 
-/// Rounds `acc / 2^shift` to the nearest integer, halves away from zero, saturating to `i32` (`shift` < 64).
-fn round_shift_sat(acc: i64, shift: u32) -> i32 {
-    // 2^(shift − 1), and 0 for shift = 0.
-    let half = (1u64 << shift) >> 1;
-    // Branch-free (the sign of a sensor output at rest is a coin toss): round |acc|, then restore the sign
-    // (s = 0 or −1, (q ^ s) − s = ±q). |acc| ≤ 2⁶³ and half ≤ 2⁶²: the sum cannot wrap. The subtraction wraps
-    // only for q = 2⁶³ (acc = i64::MIN, shift = 0), where the wrapped i64::MIN is the right result.
-    let s = acc >> 63;
-    let q = (acc.unsigned_abs().wrapping_add(half) >> shift) as i64;
-    (q ^ s)
-        .wrapping_sub(s)
-        .clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+/// Rounds `acc / 2²⁴` (a Q12 × Q12 product sum) to the nearest integer, halves away from zero, saturating to
+/// `i32`, for |acc| < 2⁶² (what [`affine`] can produce).
+///
+/// `(acc + 2²³ + s) >> 24` with s = −1 for acc < 0 and 0 otherwise: for acc ≥ 0 that is ⌊(acc + 2²³) / 2²⁴⌋, half
+/// up; for acc = −a < 0 it is ⌊(2²³ − 1 − a) / 2²⁴⌋ = −⌈(a − 2²³ + 1) / 2²⁴⌉ = −⌊(a + 2²³) / 2²⁴⌋, the same rounding
+/// of |acc| with the sign restored. Two 64-bit additions and a shift, no absolute value (on the Cortex-M4 half the
+/// instructions of rounding |acc| and restoring the sign).
+fn round_q24_sat(acc: i64) -> i32 {
+    const HALF: i64 = 1 << (2 * FRAC_BITS - 1);
+    // |acc| < 2⁶²: the sums stay within ±(2⁶² + 2²³), no wrap.
+    let q = acc.wrapping_add(HALF).wrapping_add(acc >> 63) >> (2 * FRAC_BITS);
+    q.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }
 
 fn affine<const N: usize>(m: &[[i32; N]; 3], b: &[i32; N], raw: &[i32; N]) -> [i32; 3] {
@@ -102,13 +102,19 @@ fn affine<const N: usize>(m: &[[i32; N]; 3], b: &[i32; N], raw: &[i32; N]) -> [i
     for ((dj, &rj), &bj) in d.iter_mut().zip(raw).zip(b) {
         *dj = rj.wrapping_shl(FRAC_BITS).wrapping_sub(bj);
     }
-    m.map(|row| {
-        // |m_ij · d_j| ≤ 2³¹ · 2²⁹ = 2⁶⁰, and a sum of N ≤ 4 of them is < 2⁶²: cannot wrap.
-        let acc = row.iter().zip(&d).fold(0i64, |acc, (&mij, &dj)| {
+    // |m_ij · d_j| ≤ 2³¹ · 2²⁹ = 2⁶⁰, and a sum of N ≤ 4 of them is < 2⁶²: cannot wrap.
+    let dot = |row: &[i32; N]| {
+        row.iter().zip(&d).fold(0i64, |acc, (&mij, &dj)| {
             acc.wrapping_add(i64::from(mij).wrapping_mul(i64::from(dj)))
-        });
-        round_shift_sat(acc, 2 * FRAC_BITS)
-    })
+        })
+    };
+    // Three named rows rather than `m.map(..)`, which copies the rows first at the firmware's opt-level "s".
+    let [r0, r1, r2] = m;
+    [
+        round_q24_sat(dot(r0)),
+        round_q24_sat(dot(r1)),
+        round_q24_sat(dot(r2)),
+    ]
 }
 
 impl GroupCal {

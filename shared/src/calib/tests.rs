@@ -111,54 +111,54 @@ fn nominal_chain_in_physical_units() {
     );
 }
 
-/// `round_shift_sat` against exact rational rounding (i128, |acc| / 2^shift rounded half up, sign restored) on the
-/// edges (every half, ±1 around it, the i64 extremes) and 100 000 random values at every shift used.
+/// `round_q24_sat` against exact rational rounding (i128, |acc| / 2²⁴ rounded half up, sign restored) on its
+/// domain |acc| < 2⁶²: every half, ±1 around it, the domain's ends and 100 000 random values.
 #[test]
 fn rounding_matches_exact_reference() {
-    fn reference(acc: i64, shift: u32) -> i32 {
-        let (a, unit) = (i128::from(acc), 1i128 << shift);
+    fn reference(acc: i64) -> i32 {
+        let (a, unit) = (i128::from(acc), 1i128 << 24);
         let q = (a.abs() + unit / 2) / unit;
         let q = if a < 0 { -q } else { q };
         q.clamp(i32::MIN.into(), i32::MAX.into()) as i32
     }
     let mut rng = crate::testutil::Rng::new(77);
-    for shift in [1, 12, 23, 24, 40, 62] {
-        let half = 1i64 << (shift - 1);
-        let mut cases = std::vec![
-            0,
-            1,
-            -1,
-            i64::MAX,
-            i64::MIN,
-            i64::MAX - half,
-            i64::MIN + half
-        ];
-        for k in [-3i64, -2, -1, 0, 1, 2, 3, 1 << 20, -(1 << 20)] {
-            let center = k.saturating_mul(2 * half).saturating_add(half);
-            for c in [center, center.wrapping_neg()] {
-                cases.extend([c.wrapping_sub(1), c, c.wrapping_add(1)]);
-            }
+    let (half, end) = (1i64 << 23, (1i64 << 62) - 1);
+    let mut cases = std::vec![0, 1, -1, end, -end, end - half, half - end];
+    for k in [
+        -3i64,
+        -2,
+        -1,
+        0,
+        1,
+        2,
+        3,
+        1 << 20,
+        -(1 << 20),
+        1 << 37,
+        -(1 << 37),
+    ] {
+        let center = k * 2 * half + half;
+        for c in [center, -center] {
+            cases.extend([c - 1, c, c + 1]);
         }
-        cases.extend((0..100_000).map(|_| (rng.next_u64() as i64) >> (rng.next_u64() % 64)));
-        for acc in cases {
-            assert_eq!(
-                round_shift_sat(acc, shift),
-                reference(acc, shift),
-                "{acc} >> {shift}"
-            );
-        }
+    }
+    cases.extend((0..100_000).map(|_| (rng.next_u64() as i64) >> (2 + rng.next_u64() % 62)));
+    for acc in cases {
+        assert_eq!(round_q24_sat(acc), reference(acc), "{acc}");
     }
 }
 
 #[test]
 fn rounding_is_half_away_from_zero() {
-    assert_eq!(round_shift_sat(3 << 21, 24), 0); // 0.375 → 0
-    assert_eq!(round_shift_sat(3 << 23, 24), 2); // 1.5 → 2
-    assert_eq!(round_shift_sat(1 << 23, 24), 1); // +0.5 → 1
-    assert_eq!(round_shift_sat(-(1 << 23), 24), -1); // −0.5 → −1
-    assert_eq!(round_shift_sat((1 << 23) - 1, 24), 0);
-    assert_eq!(round_shift_sat(i64::MAX >> 1, 24), i32::MAX);
-    assert_eq!(round_shift_sat(i64::MIN >> 1, 24), i32::MIN);
+    assert_eq!(round_q24_sat(3 << 21), 0); // 0.375 → 0
+    assert_eq!(round_q24_sat(3 << 23), 2); // 1.5 → 2
+    assert_eq!(round_q24_sat(1 << 23), 1); // +0.5 → 1
+    assert_eq!(round_q24_sat(-(1 << 23)), -1); // −0.5 → −1
+    assert_eq!(round_q24_sat(-(3 << 23)), -2); // −1.5 → −2
+    assert_eq!(round_q24_sat((1 << 23) - 1), 0);
+    assert_eq!(round_q24_sat(1 - (1 << 23)), 0);
+    assert_eq!(round_q24_sat(i64::MAX >> 2), i32::MAX);
+    assert_eq!(round_q24_sat(i64::MIN >> 2), i32::MIN);
 }
 
 #[test]
