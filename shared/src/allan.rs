@@ -67,6 +67,13 @@ impl Sum128 {
         (u128::from(self.hi) << 64) | u128::from(self.lo)
     }
 
+    /// Adds `v` (cannot wrap: see the module proof).
+    fn add_u64(&mut self, v: u64) {
+        let (lo, carry) = self.lo.overflowing_add(v);
+        self.lo = lo;
+        self.hi = self.hi.wrapping_add(u64::from(carry));
+    }
+
     /// Adds `d²` (cannot wrap: see the module proof).
     fn add_square(&mut self, d: i64) {
         let (lo, hi) = square_wide(d.unsigned_abs());
@@ -155,10 +162,27 @@ impl Level {
 #[inline(always)]
 fn push_into(levels: &mut [Level], x: i32, last_has_prev: bool) {
     let () = DIFF_FITS_I64;
-    let Some((last, odd)) = levels.split_last_mut() else {
+    let Some((first, higher)) = levels.split_first_mut() else {
         return;
     };
-    let mut block = i64::from(x);
+    // Level 0, which every sample touches, in 32 bits: its block is the sample itself and its `prev` the previous
+    // sample, so both are `i32` (the cast is exact), |d| < 2³² and d² is one 32 × 32 → 64-bit multiply.
+    let prev0 = first.prev as i32;
+    let d0 = u64::from(x.abs_diff(prev0));
+    if higher.is_empty() {
+        if last_has_prev {
+            first.sum_sq.add_u64(d0 * d0);
+        }
+        first.prev = i64::from(x);
+        return;
+    }
+    // Level 0 is not the last touched, so its block index is odd: it has a predecessor.
+    first.sum_sq.add_u64(d0 * d0);
+    first.prev = i64::from(x);
+    let mut block = i64::from(x) + i64::from(prev0);
+    let Some((last, odd)) = higher.split_last_mut() else {
+        return;
+    };
     for level in odd {
         // |block|, |prev| ≤ 2^(31+k): |d| ≤ 2^(32+k) < 2⁶³ (`DIFF_FITS_I64`).
         level.sum_sq.add_square(block - level.prev);
@@ -224,41 +248,51 @@ impl AllanAccumulator {
     }
 
     /// [`Self::push`] of `xs[c]` into `accs[c]` for every channel c (extra items of either are left alone);
-    /// the per-sample bookkeeping is shared when all accumulators hold the same number of samples, as the
-    /// pipeline's do.
+    /// the per-sample bookkeeping is shared by the accumulators that hold as many samples as the first, as all the
+    /// pipeline's do (the others take [`Self::push`]).
     pub fn push_each(accs: &mut [Self], xs: &[i32]) {
         let Some(index) = accs.first().map(Self::samples) else {
             return;
         };
+        if index >= MAX_SAMPLES {
+            for (acc, &x) in accs.iter_mut().zip(xs) {
+                acc.push(x);
+            }
+            return;
+        }
         let step = Step::new(index);
-        if index < MAX_SAMPLES && accs.iter().all(|a| a.samples == index) {
-            // One sample in two touches only level 0, one in four levels 0 and 1, …: those depths get a loop
-            // over the channels with the levels unrolled (the same arithmetic as `push_levels`).
-            match step.depth {
-                1 => Self::push_all::<1>(accs, xs, step),
-                2 => Self::push_all::<2>(accs, xs, step),
-                3 => Self::push_all::<3>(accs, xs, step),
-                _ => {
-                    for (acc, &x) in accs.iter_mut().zip(xs) {
+        // One sample in two touches only level 0, one in four levels 0 and 1, …: those depths get a loop over the
+        // channels with the levels unrolled (the same arithmetic as `push_levels`).
+        match step.depth {
+            1 => Self::push_all::<1>(accs, xs, index, step),
+            2 => Self::push_all::<2>(accs, xs, index, step),
+            3 => Self::push_all::<3>(accs, xs, index, step),
+            _ => {
+                for (acc, &x) in accs.iter_mut().zip(xs) {
+                    if acc.samples == index {
                         // index < MAX_SAMPLES (checked above): cannot wrap.
                         acc.samples = index.wrapping_add(1);
                         acc.push_levels(x, step);
+                    } else {
+                        acc.push(x);
                     }
                 }
-            }
-        } else {
-            for (acc, &x) in accs.iter_mut().zip(xs) {
-                acc.push(x);
             }
         }
     }
 
-    /// `push_levels` of every channel for a step of depth `D` (every accumulator holds `samples` < `MAX_SAMPLES`).
+    /// `push_levels` for a step of depth `D` of every channel that holds `index` (< `MAX_SAMPLES`) samples; `push`
+    /// for the others.
     #[inline(always)]
-    fn push_all<const D: usize>(accs: &mut [Self], xs: &[i32], step: Step) {
+    fn push_all<const D: usize>(accs: &mut [Self], xs: &[i32], index: u64, step: Step) {
+        // index < MAX_SAMPLES (this function's precondition, checked by `push_each`): cannot wrap.
+        let next = index.wrapping_add(1);
         for (acc, &x) in accs.iter_mut().zip(xs) {
-            // < MAX_SAMPLES (this function's precondition, checked by `push_each`): cannot wrap.
-            acc.samples = acc.samples.wrapping_add(1);
+            if acc.samples != index {
+                acc.push(x);
+                continue;
+            }
+            acc.samples = next;
             if let Some((levels, _)) = acc.levels.split_first_chunk_mut::<D>() {
                 push_into(levels, x, step.last_has_prev);
             }
