@@ -267,18 +267,58 @@ impl<const G: usize> AxisState<G> {
     };
 }
 
-/// Raw-channel watch of one group: the last code of each channel and how often it repeated since it changed
-/// (saturating at `u16::MAX`).
+/// Raw-channel watch of one sensor's `N` channels: the last code of each and how often it repeated since it
+/// changed (saturating at `u16::MAX`).
+#[derive(Clone, Copy, Debug)]
+struct ChannelWatch<const N: usize> {
+    last: [i32; N],
+    repeats: [u16; N],
+}
+
+impl<const N: usize> ChannelWatch<N> {
+    const NEW: Self = Self {
+        last: [i32::MIN; N],
+        repeats: [0; N],
+    };
+
+    /// Takes one sample's `codes`; returns whether any channel is at a rail (`code − above_min` ≥ `span` as
+    /// `u32`, see `Fusion::fuse`) and whether any has repeated `stuck_repeats` times. A constant channel count, so
+    /// the loop unrolls (7 channels in one indexed loop cost twice the instructions).
+    #[inline(always)]
+    fn update(
+        &mut self,
+        codes: &[i32; N],
+        above_min: i32,
+        span: u32,
+        stuck_repeats: u16,
+    ) -> (bool, bool) {
+        let (mut sat, mut stuck) = (false, false);
+        for ((&code, last), repeats) in codes.iter().zip(&mut self.last).zip(&mut self.repeats) {
+            // = table.saturated(code)
+            sat |= code.wrapping_sub(above_min) as u32 >= span;
+            // A live channel changes almost every sample: that path only resets the count.
+            if code == *last {
+                *repeats = repeats.saturating_add(1);
+                stuck |= *repeats >= stuck_repeats;
+            } else {
+                (*last, *repeats) = (code, 0);
+            }
+        }
+        (sat, stuck)
+    }
+}
+
+/// Raw-channel watch of one group.
 #[derive(Clone, Copy, Debug)]
 struct RawWatch {
-    last: [i32; RAW_CHANNELS],
-    repeats: [u16; RAW_CHANNELS],
+    gyro: ChannelWatch<{ crate::calib::GYRO_RAW }>,
+    accel: ChannelWatch<{ crate::calib::ACCEL_RAW }>,
 }
 
 impl RawWatch {
     const NEW: Self = Self {
-        last: [i32::MIN; RAW_CHANNELS],
-        repeats: [0; RAW_CHANNELS],
+        gyro: ChannelWatch::NEW,
+        accel: ChannelWatch::NEW,
     };
 }
 
@@ -318,11 +358,6 @@ impl AxisScale {
     }
 }
 
-const RAW_CHANNELS: usize = crate::calib::GYRO_RAW + crate::calib::ACCEL_RAW;
-/// Raw channels of the gyros, as bits over channels.
-const GYRO_CHANNELS: u32 = (1 << crate::calib::GYRO_RAW) - 1;
-/// Raw channels of the accelerometer.
-const ACCEL_CHANNELS: u32 = ((1 << RAW_CHANNELS) - 1) & !GYRO_CHANNELS;
 /// Largest noise variance kept, so that `var << 16` fits in `u64`.
 const VAR_LIMIT: u64 = 1 << 47;
 /// The difference whose `d²/2` is [`VAR_LIMIT`].
@@ -613,32 +648,13 @@ impl<const G: usize> Fusion<G> {
         .unwrap_or(u32::MAX);
         let (mut sat, mut stuck) = ([0u32; 2], [0u32; 2]);
         for (g, (r, watch)) in raw.iter().zip(self.raw.iter_mut()).enumerate() {
-            let [g0, g1, g2, g3] = r.gyro;
-            let [a0, a1, a2] = r.accel;
-            // Bit ch per raw channel (gyro channels first).
-            let (mut ch_sat, mut ch_stuck) = (0u32, 0u32);
-            for (ch, ((&code, last), repeats)) in [g0, g1, g2, g3, a0, a1, a2]
-                .iter()
-                .zip(watch.last.iter_mut())
-                .zip(watch.repeats.iter_mut())
-                .enumerate()
-            {
-                // = table.saturated(code)
-                ch_sat |= u32::from(code.wrapping_sub(above_min) as u32 >= span) << ch;
-                // A live channel changes almost every sample: that path only resets the count.
-                if code == *last {
-                    *repeats = repeats.saturating_add(1);
-                    ch_stuck |= u32::from(*repeats >= stuck_repeats) << ch;
-                } else {
-                    (*last, *repeats) = (code, 0);
-                }
-            }
-            // Written out for the two kinds: as a loop over `[GYRO_CHANNELS, ACCEL_CHANNELS]` it cost 46 Cortex-M4
-            // instructions per group instead of 16.
-            sat[0] |= u32::from(ch_sat & GYRO_CHANNELS != 0) << g;
-            sat[1] |= u32::from(ch_sat & ACCEL_CHANNELS != 0) << g;
-            stuck[0] |= u32::from(ch_stuck & GYRO_CHANNELS != 0) << g;
-            stuck[1] |= u32::from(ch_stuck & ACCEL_CHANNELS != 0) << g;
+            let (gyro_sat, gyro_stuck) = watch.gyro.update(&r.gyro, above_min, span, stuck_repeats);
+            let (accel_sat, accel_stuck) =
+                watch.accel.update(&r.accel, above_min, span, stuck_repeats);
+            sat[0] |= u32::from(gyro_sat) << g;
+            sat[1] |= u32::from(accel_sat) << g;
+            stuck[0] |= u32::from(gyro_stuck) << g;
+            stuck[1] |= u32::from(accel_stuck) << g;
         }
         let mut excluded = self.config.excluded;
         if self.config.robust {
