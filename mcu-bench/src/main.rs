@@ -11,12 +11,11 @@ use cortex_m::peripheral::SYST;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
-use shared::allan::AllanAccumulator;
 use shared::bench::BenchFrames;
 use shared::calib::{AXES, CalibrationTable, RawCounts};
 use shared::fuse::{Fusion, FusionConfig, FusionMode};
 use shared::nav::NavIntegrator;
-use shared::pipeline::{AllanBank, FUSED_CHANNEL0, Pipeline, PipelineConfig};
+use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
 use shared::wire::frame::{FRAME_LEN, GROUPS};
 use shared::wire::{Decoded, FrameDecoder};
 
@@ -168,7 +167,7 @@ fn stages(bank: &mut AllanBank) {
     let cal = CalibrationTable::<GROUPS>::factory();
     let mut decoder = FrameDecoder::new();
     let mut fusion = Fusion::<GROUPS>::new(FusionConfig::DEFAULT);
-    bank.0.iter_mut().for_each(AllanAccumulator::reset);
+    bank.0.reset();
     let mut frames = BenchFrames::new();
     let mut bytes = [0u8; FRAME_LEN * BATCH];
     let mut decoded: [Option<Decoded>; BATCH] = [None; BATCH];
@@ -210,10 +209,8 @@ fn stages(bank: &mut AllanBank) {
                 }
             }),
             ticks_between(|| {
-                let (sensors, fused_channels) = bank.0.split_at_mut(FUSED_CHANNEL0);
                 for (a, f) in axes.iter().zip(&fused) {
-                    AllanAccumulator::push_each(sensors, a.as_flattened());
-                    AllanAccumulator::push_each(fused_channels, f);
+                    core::hint::black_box(bank.0.push_parts(a.as_flattened(), f));
                 }
             }),
             ticks_between(|| {

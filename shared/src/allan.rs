@@ -15,8 +15,9 @@
 //! A level-k block sum satisfies |S| ≤ 2^k · 2³¹ = 2^(31+k) ≤ 2⁶², so `prev: i64` holds it for k ≤ 31 (we keep
 //! `LEVELS` = 24). A difference |d| ≤ 2^(32+k), so d² ≤ 2^(64+2k) < 2¹²⁸ for k ≤ 31. Level k has fewer than T/2^k
 //! differences, so `Σd² < (T/2^k) · 2^(64+2k) = T · 2^(64+k)`; a level has any term only when 2^(k+1) ≤ T, hence
-//! `Σd² < T² · 2⁶³ ≤ 2¹²⁷` for T ≤ 2³². The 128-bit sums therefore cannot overflow for 2³² samples of full-scale
-//! input (2²⁴ asked for; 82 days at 604.8 Hz); `push` refuses further samples (and says so) rather than wrap.
+//! `Σd² < T² · 2⁶³ ≤ 2¹²⁷` for T ≤ 2³² (level 0: fewer than T terms below 2⁶⁴, < 2⁹⁶, all that its sum keeps). The
+//! sums therefore cannot overflow for 2³² samples of full-scale input (2²⁴ asked for; 82 days at 604.8 Hz); `push`
+//! refuses further samples (and says so) rather than wrap.
 //! `tests::full_scale_extremes_do_not_overflow` drives the worst case of the deepest levels and checks against an
 //! independent i128 computation. Since `LEVELS` ≤ 31, |d| ≤ 2⁶² fits in `i64`, and d² is one widening
 //! 64 × 64 → 128-bit multiply (from 32-bit halves on 32-bit targets, one product while |d| < 2³²).
@@ -65,13 +66,6 @@ impl Sum128 {
 
     fn get(self) -> u128 {
         (u128::from(self.hi) << 64) | u128::from(self.lo)
-    }
-
-    /// Adds `v` (cannot wrap: see the module proof).
-    fn add_u64(&mut self, v: u64) {
-        let (lo, carry) = self.lo.overflowing_add(v);
-        self.lo = lo;
-        self.hi = self.hi.wrapping_add(u64::from(carry));
     }
 
     /// Adds `d²` (cannot wrap: see the module proof).
@@ -152,37 +146,59 @@ impl Level {
     };
 }
 
-/// Adds sample `x` to `levels` = the levels its step completes (the last one differenced only if
-/// `last_has_prev`). Inlined with a constant length, the loop unrolls.
+/// Level 0 of one channel, which every sample touches, in 16 bytes instead of a [`Level`]'s 24: its block is the
+/// sample itself and its `prev` the previous sample (`i32`), so |d| < 2³² and d² < 2⁶⁴ is one 32 × 32 → 64-bit
+/// multiply; fewer than 2³² of them sum to < 2⁹⁶, held as 64 + 32 bits.
+#[derive(Clone, Copy, Debug, Default)]
+struct Level0 {
+    sum_lo: u64,
+    sum_hi: u32,
+    prev: i32,
+}
+
+impl Level0 {
+    const ZERO: Self = Self {
+        sum_lo: 0,
+        sum_hi: 0,
+        prev: 0,
+    };
+
+    /// Adds `d²` of the difference to the previous sample (< 2⁹⁶ in all: cannot wrap).
+    fn add_square(&mut self, x: i32) {
+        let d = u64::from(x.abs_diff(self.prev));
+        let (lo, carry) = self.sum_lo.overflowing_add(d.wrapping_mul(d));
+        self.sum_lo = lo;
+        self.sum_hi = self.sum_hi.wrapping_add(u32::from(carry));
+    }
+
+    fn sum_sq(&self) -> u128 {
+        (u128::from(self.sum_hi) << 64) | u128::from(self.sum_lo)
+    }
+}
+
+/// Adds sample `x` to the levels its step completes: level 0 (`zero`) and `higher` = levels 1, 2, … (the last one
+/// touched is differenced only if `last_has_prev`). Inlined with a constant length, the loop unrolls.
 ///
 /// Plain `+`/`−`, so that builds with overflow checks (the tests, also on i686) keep checking the bound: level k holds
-/// block sums |S| ≤ 2^(31+k) (`levels` ≤ [`LEVELS`] = 24 long), so |d| ≤ 2^(32+k) < 2⁶³ and the next level's block,
+/// block sums |S| ≤ 2^(31+k) (`higher` < [`LEVELS`] = 24 long), so |d| ≤ 2^(32+k) < 2⁶³ and the next level's block,
 /// a sum of two, ≤ 2^(32+k) too; the squares' sums are bounded in the module docs.
 #[allow(clippy::arithmetic_side_effects)]
 #[inline(always)]
-fn push_into(levels: &mut [Level], x: i32, last_has_prev: bool) {
+fn push_into(zero: &mut Level0, higher: &mut [Level], x: i32, last_has_prev: bool) {
     let () = DIFF_FITS_I64;
-    let Some((first, higher)) = levels.split_first_mut() else {
-        return;
-    };
-    // Level 0, which every sample touches, in 32 bits: its block is the sample itself and its `prev` the previous
-    // sample, so both are `i32` (the cast is exact), |d| < 2³² and d² is one 32 × 32 → 64-bit multiply.
-    let prev0 = first.prev as i32;
-    let d0 = u64::from(x.abs_diff(prev0));
-    if higher.is_empty() {
-        if last_has_prev {
-            first.sum_sq.add_u64(d0 * d0);
-        }
-        first.prev = i64::from(x);
-        return;
-    }
-    // Level 0 is not the last touched, so its block index is odd: it has a predecessor.
-    first.sum_sq.add_u64(d0 * d0);
-    first.prev = i64::from(x);
-    let mut block = i64::from(x) + i64::from(prev0);
+    let prev0 = zero.prev;
     let Some((last, odd)) = higher.split_last_mut() else {
+        // Level 0 is the last touched: the first sample has no predecessor.
+        if last_has_prev {
+            zero.add_square(x);
+        }
+        zero.prev = x;
         return;
     };
+    // Level 0 is not the last touched, so its block index is odd: it has a predecessor.
+    zero.add_square(x);
+    zero.prev = x;
+    let mut block = i64::from(x) + i64::from(prev0);
     for level in odd {
         // |block|, |prev| ≤ 2^(31+k): |d| ≤ 2^(32+k) < 2⁶³ (`DIFF_FITS_I64`).
         level.sum_sq.add_square(block - level.prev);
@@ -195,25 +211,31 @@ fn push_into(levels: &mut [Level], x: i32, last_has_prev: bool) {
     last.prev = block;
 }
 
-/// Streaming non-overlapping octave Allan accumulator of one channel (see module docs).
+/// Streaming non-overlapping octave Allan accumulators of `C` channels that take their samples together (see
+/// module docs): one sample count and one step for all, so that the per-sample bookkeeping is paid once per sample,
+/// not once per channel (the pipeline's 102 channels: −0.9 k Cortex-M4 instructions per frame, `mcu-bench`).
 #[derive(Clone, Debug)]
-pub struct AllanAccumulator {
+pub struct AllanSet<const C: usize> {
     samples: u64,
-    levels: [Level; LEVELS],
+    /// Level 0 of every channel, side by side.
+    zero: [Level0; C],
+    /// Levels 1 … `LEVELS` − 1 of every channel.
+    higher: [[Level; LEVELS - 1]; C],
 }
 
-impl Default for AllanAccumulator {
+impl<const C: usize> Default for AllanSet<C> {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl AllanAccumulator {
-    /// An empty accumulator.
+impl<const C: usize> AllanSet<C> {
+    /// Empty accumulators.
     pub const fn new() -> Self {
         Self {
             samples: 0,
-            levels: [Level::ZERO; LEVELS],
+            zero: [Level0::ZERO; C],
+            higher: [[Level::ZERO; LEVELS - 1]; C],
         }
     }
 
@@ -222,86 +244,62 @@ impl AllanAccumulator {
         *self = Self::new();
     }
 
-    /// Samples taken so far.
+    /// Samples taken so far (by every channel).
     pub fn samples(&self) -> u64 {
         self.samples
     }
 
-    /// Adds one sample. Returns `false` (and ignores it) once [`MAX_SAMPLES`] have been taken.
-    pub fn push(&mut self, x: i32) -> bool {
-        if self.samples >= MAX_SAMPLES {
+    /// Adds one sample to every channel: `first` to channels 0, 1, …, then `second` to the channels after them.
+    /// Returns `false` and takes nothing unless `first` and `second` hold exactly `C` values together, or once
+    /// [`MAX_SAMPLES`] have been taken.
+    pub fn push_parts(&mut self, first: &[i32], second: &[i32]) -> bool {
+        if self.samples >= MAX_SAMPLES || first.len().checked_add(second.len()) != Some(C) {
             return false;
         }
         let step = Step::new(self.samples);
         // < MAX_SAMPLES = 2³² (just checked): cannot wrap.
         self.samples = self.samples.wrapping_add(1);
-        self.push_levels(x, step);
-        true
-    }
-
-    /// Adds a sample whose [`Step`] is `step` (`samples` is already counted).
-    #[inline(always)]
-    fn push_levels(&mut self, x: i32, step: Step) {
-        if let Some(levels) = self.levels.get_mut(..step.depth) {
-            push_into(levels, x, step.last_has_prev);
-        }
-    }
-
-    /// [`Self::push`] of `xs[c]` into `accs[c]` for every channel c (extra items of either are left alone);
-    /// the per-sample bookkeeping is shared by the accumulators that hold as many samples as the first, as all the
-    /// pipeline's do (the others take [`Self::push`]).
-    pub fn push_each(accs: &mut [Self], xs: &[i32]) {
-        let Some(index) = accs.first().map(Self::samples) else {
-            return;
-        };
-        if index >= MAX_SAMPLES {
-            for (acc, &x) in accs.iter_mut().zip(xs) {
-                acc.push(x);
-            }
-            return;
-        }
-        let step = Step::new(index);
+        let split = first.len().min(C);
+        let (zero_a, zero_b) = self.zero.split_at_mut(split);
+        let (higher_a, higher_b) = self.higher.split_at_mut(split);
         // One sample in two touches only level 0, one in four levels 0 and 1, …: those depths get a loop over the
-        // channels with the levels unrolled (the same arithmetic as `push_levels`).
+        // channels with the levels unrolled (`H` = levels above 0).
         match step.depth {
-            1 => Self::push_all::<1>(accs, xs, index, step),
-            2 => Self::push_all::<2>(accs, xs, index, step),
-            3 => Self::push_all::<3>(accs, xs, index, step),
-            _ => {
-                for (acc, &x) in accs.iter_mut().zip(xs) {
-                    if acc.samples == index {
-                        // index < MAX_SAMPLES (checked above): cannot wrap.
-                        acc.samples = index.wrapping_add(1);
-                        acc.push_levels(x, step);
-                    } else {
-                        acc.push(x);
+            1 => {
+                push_all::<0>(zero_a, higher_a, first, step);
+                push_all::<0>(zero_b, higher_b, second, step);
+            }
+            2 => {
+                push_all::<1>(zero_a, higher_a, first, step);
+                push_all::<1>(zero_b, higher_b, second, step);
+            }
+            3 => {
+                push_all::<2>(zero_a, higher_a, first, step);
+                push_all::<2>(zero_b, higher_b, second, step);
+            }
+            depth => {
+                let above = depth.saturating_sub(1);
+                for ((zero, higher), &x) in zero_a
+                    .iter_mut()
+                    .zip(higher_a.iter_mut())
+                    .zip(first)
+                    .chain(zero_b.iter_mut().zip(higher_b.iter_mut()).zip(second))
+                {
+                    if let Some(higher) = higher.get_mut(..above) {
+                        push_into(zero, higher, x, step.last_has_prev);
                     }
                 }
             }
         }
+        true
     }
 
-    /// `push_levels` for a step of depth `D` of every channel that holds `index` (< `MAX_SAMPLES`) samples; `push`
-    /// for the others.
-    #[inline(always)]
-    fn push_all<const D: usize>(accs: &mut [Self], xs: &[i32], index: u64, step: Step) {
-        // index < MAX_SAMPLES (this function's precondition, checked by `push_each`): cannot wrap.
-        let next = index.wrapping_add(1);
-        for (acc, &x) in accs.iter_mut().zip(xs) {
-            if acc.samples != index {
-                acc.push(x);
-                continue;
-            }
-            acc.samples = next;
-            if let Some((levels, _)) = acc.levels.split_first_chunk_mut::<D>() {
-                push_into(levels, x, step.last_has_prev);
-            }
-        }
-    }
-
-    /// Statistics of level `k` (`None` for k ≥ [`LEVELS`]).
-    pub fn level(&self, k: usize) -> Option<AllanLevel> {
-        let sum_sq = self.levels.get(k)?.sum_sq.get();
+    /// Statistics of level `k` of `channel` (`None` for channel ≥ `C` or k ≥ [`LEVELS`]).
+    pub fn level(&self, channel: usize, k: usize) -> Option<AllanLevel> {
+        let sum_sq = match k.checked_sub(1) {
+            None => self.zero.get(channel)?.sum_sq(),
+            Some(above) => self.higher.get(channel)?.get(above)?.sum_sq.get(),
+        };
         let blocks = self.samples >> k;
         Some(AllanLevel {
             level: k as u8,
@@ -310,11 +308,62 @@ impl AllanAccumulator {
         })
     }
 
+    /// Levels of `channel` that have at least one difference.
+    pub fn levels(&self, channel: usize) -> impl Iterator<Item = AllanLevel> + '_ {
+        (0..LEVELS)
+            .filter_map(move |k| self.level(channel, k))
+            .filter(|l| l.count > 0)
+    }
+}
+
+/// `push_into` of level 0 and the first `H` higher levels of every channel, for one step of depth `H` + 1.
+#[inline(always)]
+fn push_all<const H: usize>(
+    zero: &mut [Level0],
+    higher: &mut [[Level; LEVELS - 1]],
+    xs: &[i32],
+    step: Step,
+) {
+    for ((zero, higher), &x) in zero.iter_mut().zip(higher).zip(xs) {
+        if let Some((higher, _)) = higher.split_first_chunk_mut::<H>() {
+            push_into(zero, higher, x, step.last_has_prev);
+        }
+    }
+}
+
+/// Streaming non-overlapping octave Allan accumulator of one channel (see module docs): an [`AllanSet`] of one.
+#[derive(Clone, Debug, Default)]
+pub struct AllanAccumulator(AllanSet<1>);
+
+impl AllanAccumulator {
+    /// An empty accumulator.
+    pub const fn new() -> Self {
+        Self(AllanSet::new())
+    }
+
+    /// Forgets everything.
+    pub fn reset(&mut self) {
+        self.0.reset();
+    }
+
+    /// Samples taken so far.
+    pub fn samples(&self) -> u64 {
+        self.0.samples()
+    }
+
+    /// Adds one sample. Returns `false` (and ignores it) once [`MAX_SAMPLES`] have been taken.
+    pub fn push(&mut self, x: i32) -> bool {
+        self.0.push_parts(&[x], &[])
+    }
+
+    /// Statistics of level `k` (`None` for k ≥ [`LEVELS`]).
+    pub fn level(&self, k: usize) -> Option<AllanLevel> {
+        self.0.level(0, k)
+    }
+
     /// Levels that have at least one difference.
     pub fn levels(&self) -> impl Iterator<Item = AllanLevel> + '_ {
-        (0..LEVELS)
-            .filter_map(|k| self.level(k))
-            .filter(|l| l.count > 0)
+        self.0.levels(0)
     }
 }
 
@@ -413,14 +462,14 @@ mod tests {
     #[test]
     fn refuses_samples_beyond_the_bound() {
         let mut acc = AllanAccumulator::new();
-        acc.samples = MAX_SAMPLES - 1;
+        acc.0.samples = MAX_SAMPLES - 1;
         assert!(acc.push(7));
         assert!(!acc.push(7));
         assert_eq!(acc.samples(), MAX_SAMPLES);
     }
 
     #[test]
-    fn push_each_equals_push() {
+    fn set_equals_single_channels() {
         let mut s = 7u64;
         let mut next = || {
             s = s
@@ -428,25 +477,32 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             (s >> 32) as i32
         };
-        let mut each: Vec<AllanAccumulator> = (0..5).map(|_| AllanAccumulator::new()).collect();
-        let mut one = each.clone();
-        // Unequal sample counts, and one accumulator at its limit.
-        for acc in [&mut each, &mut one] {
-            acc[2].push(1);
-            acc[4].samples = MAX_SAMPLES - 3;
-        }
-        for _ in 0..3000 {
+        let mut set = AllanSet::<5>::new();
+        let mut one: Vec<AllanAccumulator> = (0..5).map(|_| AllanAccumulator::new()).collect();
+        // Wrong lengths take nothing.
+        assert!(!set.push_parts(&[1, 2], &[3, 4]));
+        assert!(!set.push_parts(&[1, 2, 3], &[4, 5, 6]));
+        assert_eq!(set.samples(), 0);
+        for i in 0..3000 {
             let xs: Vec<i32> = (0..5).map(|_| next()).collect();
-            AllanAccumulator::push_each(&mut each, &xs);
-            for (a, &x) in one.iter_mut().zip(&xs) {
-                a.push(x);
+            // The split between the parts does not matter.
+            let (a, b) = xs.split_at(i % 6);
+            assert!(set.push_parts(a, b));
+            for (acc, &x) in one.iter_mut().zip(&xs) {
+                assert!(acc.push(x));
             }
         }
-        for (a, b) in each.iter().zip(&one) {
-            assert_eq!(a.samples(), b.samples());
-            assert!((0..LEVELS).all(|k| a.level(k) == b.level(k)));
+        for (c, acc) in one.iter().enumerate() {
+            assert_eq!(set.samples(), acc.samples());
+            assert!((0..LEVELS).all(|k| set.level(c, k) == acc.level(k)));
+            assert!(set.levels(c).eq(acc.levels()));
         }
-        assert_eq!(each[4].samples(), MAX_SAMPLES);
+        assert_eq!(set.level(5, 0), None);
+        // At the limit the whole set refuses.
+        set.samples = MAX_SAMPLES - 1;
+        assert!(set.push_parts(&[1; 5], &[]));
+        assert!(!set.push_parts(&[1; 5], &[]));
+        assert_eq!(set.samples(), MAX_SAMPLES);
     }
 
     #[test]
@@ -472,7 +528,10 @@ mod tests {
 
     #[test]
     fn state_size() {
-        // 8 + 24 × (8 + 16) bytes, identical on thumbv7em (both align 8).
-        assert_eq!(core::mem::size_of::<AllanAccumulator>(), 8 + LEVELS * 24);
+        // The sample count, then per channel level 0 in 16 bytes and 23 levels of 8 + 16 bytes; identical on
+        // thumbv7em (align 8).
+        let channel = 16 + (LEVELS - 1) * 24;
+        assert_eq!(core::mem::size_of::<AllanAccumulator>(), 8 + channel);
+        assert_eq!(core::mem::size_of::<AllanSet<102>>(), 8 + 102 * channel);
     }
 }

@@ -20,7 +20,7 @@
 //! Allan accumulators (they assume contiguous data; `LinkCounters::frames_dropped` says how far that holds).
 //! While a fused axis has no valid sensor, its Allan channel repeats the last valid value (`invalid_frames`).
 
-use crate::allan::{AllanAccumulator, LEVELS};
+use crate::allan::{AllanSet, LEVELS};
 use crate::calib::{AXES, CalibrationTable, RawCounts, encoded_len_max};
 use crate::crc::crc32c;
 use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, HealthMask, div_round};
@@ -234,13 +234,13 @@ struct Cursor {
     faults: Option<u8>,
 }
 
-/// The Allan accumulators of all channels (59.6 KiB, all zero when new, so a static of it lands in `.bss`).
-pub struct AllanBank(pub [AllanAccumulator; ALLAN_CHANNELS]);
+/// The Allan accumulators of all channels (56.6 KiB, all zero when new, so a static of it lands in `.bss`).
+pub struct AllanBank(pub AllanSet<ALLAN_CHANNELS>);
 
 impl AllanBank {
     /// All accumulators empty.
     pub const fn new() -> Self {
-        Self([const { AllanAccumulator::new() }; ALLAN_CHANNELS])
+        Self(AllanSet::new())
     }
 }
 
@@ -292,10 +292,7 @@ pub struct Pipeline<B> {
 impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// A pipeline with the factory calibration; `bank` is reset.
     pub fn new(config: PipelineConfig, mut bank: B) -> Self {
-        bank.borrow_mut()
-            .0
-            .iter_mut()
-            .for_each(AllanAccumulator::reset);
+        bank.borrow_mut().0.reset();
         Self {
             config,
             decoder: FrameDecoder::new(),
@@ -418,9 +415,9 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         self.uptime_ms = ms;
     }
 
-    /// Allan accumulator of `channel` (see [`SENSOR_CHANNELS`], [`FUSED_CHANNEL0`]).
-    pub fn allan(&self, channel: usize) -> Option<&AllanAccumulator> {
-        self.allan.borrow().0.get(channel)
+    /// The Allan accumulators (channels: see [`SENSOR_CHANNELS`], [`FUSED_CHANNEL0`]).
+    pub fn allan(&self) -> &AllanSet<ALLAN_CHANNELS> {
+        &self.allan.borrow().0
     }
 
     /// Sample interval of the Allan accumulators, ps (`None` before the first frame).
@@ -522,14 +519,15 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 };
             self.cursor.allan = (next_channel < end).then_some((next_channel, next_level, end));
             let tau0_ps = self.tau0_ps().unwrap_or(0);
-            let Some(acc) = self.allan.borrow().0.get(usize::from(channel)) else {
-                continue;
-            };
-            if let Some(l) = acc.level(usize::from(level)).filter(|l| l.count > 0) {
+            let set = &self.allan.borrow().0;
+            if let Some(l) = set
+                .level(usize::from(channel), usize::from(level))
+                .filter(|l| l.count > 0)
+            {
                 return Some(Telemetry::Allan(AllanReport {
                     channel,
                     tau0_ps,
-                    samples: acc.samples(),
+                    samples: set.samples(),
                     level: l,
                 }));
             }
@@ -560,12 +558,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             robust: fusion.robust,
             faults,
             invalid_frames: self.invalid_frames,
-            allan_samples: self
-                .allan
-                .borrow()
-                .0
-                .first()
-                .map_or(0, AllanAccumulator::samples),
+            allan_samples: self.allan.borrow().0.samples(),
             telemetry_dropped: self.telemetry_dropped,
             commands: self.commands,
         }
@@ -578,11 +571,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     }
 
     fn restart_statistics(&mut self) {
-        self.allan
-            .borrow_mut()
-            .0
-            .iter_mut()
-            .for_each(AllanAccumulator::reset);
+        self.allan.borrow_mut().0.reset();
         self.avg = Averager::NEW;
         self.nav = NavIntegrator::new();
         self.nav_start_ticks = None;
@@ -665,11 +654,12 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             }
         }
         // Allan channels: the sensors' axes, then the fused axes (holding the last valid value).
-        let bank = &mut self.allan.borrow_mut().0;
-        if let Some((sensors, fused_channels)) = bank.split_at_mut_checked(FUSED_CHANNEL0) {
-            AllanAccumulator::push_each(sensors, axes.as_flattened());
-            AllanAccumulator::push_each(fused_channels, &self.fused_hold);
-        }
+        // 96 + 6 = ALLAN_CHANNELS values: always taken (until the accumulators' sample limit).
+        let _ = self
+            .allan
+            .borrow_mut()
+            .0
+            .push_parts(axes.as_flattened(), &self.fused_hold);
 
         self.last_t_us = Some(t_us);
         self.avg.add(&fused, f.temp_cdeg, t_us);
@@ -867,12 +857,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 }
                 self.cursor.allan = Some((first, 0, end as u8));
             }
-            Command::AllanReset => self
-                .allan
-                .borrow_mut()
-                .0
-                .iter_mut()
-                .for_each(AllanAccumulator::reset),
+            Command::AllanReset => self.allan.borrow_mut().0.reset(),
             Command::HealthRequest { detail } => {
                 let h = self.health();
                 self.push(Output::Telemetry(Telemetry::Health(h)));

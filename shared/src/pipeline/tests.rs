@@ -187,13 +187,13 @@ fn time_and_tau0_follow_the_sequence_counter_and_decimation() {
     assert_eq!(r[4].t_us, (6 * 16 * 1_000_000_000u64) / 9_676_800); // frame 6 at 6 × 16 base periods
     assert_eq!(p.link_counters().frames_dropped, 2);
     assert_eq!(p.tau0_ps(), Some(1_653_439_153)); // 16 / 9676.8 Hz
-    assert_eq!(p.allan(0).unwrap().samples(), 8);
+    assert_eq!(p.allan().samples(), 8);
     // A new decimation restarts the statistics.
     let more: Vec<FrameRepr> = (10..13)
         .map(|i| frame(i, 7, [0.0; 3], [0.0; 3], 5.0, &mut rng))
         .collect();
     run(&mut p, &stream(&more));
-    assert_eq!(p.allan(FUSED_CHANNEL0).unwrap().samples(), 3);
+    assert_eq!(p.allan().samples(), 3);
     assert_eq!(p.tau0_ps(), Some(826_719_576));
 }
 
@@ -475,10 +475,7 @@ fn allan_dump_reports_every_filled_level() {
         .iter()
         .find(|r| r.channel as usize == FUSED_CHANNEL0 + AZ && r.level.level == 3)
         .unwrap();
-    assert_eq!(
-        r.level,
-        p.allan(FUSED_CHANNEL0 + AZ).unwrap().level(3).unwrap()
-    );
+    assert_eq!(r.level, p.allan().level(FUSED_CHANNEL0 + AZ, 3).unwrap());
     assert_eq!(
         (r.samples, r.tau0_ps, r.level.count),
         (300, 1_653_439_153, 300 / 8 - 1)
