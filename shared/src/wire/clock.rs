@@ -68,10 +68,47 @@ impl FrameClock {
         tick
     }
 
-    /// `ticks` base periods in µs, for a base rate in mHz (rounded down).
+    /// `ticks` base periods in µs, for a base rate in mHz (rounded down; modulo 2⁶⁴ where the time exceeds it).
+    ///
+    /// With ticks = q · rate + m (0 ≤ m < rate): ⌊ticks · 10⁹ / rate⌋ = q · 10⁹ + ⌊m · 10⁹ / rate⌋, two 64-bit
+    /// divisions where m · 10⁹ fits 64 bits (rate < 2³⁴ mHz: every FPGA rate), instead of a 128-bit one (≈ 1.1 k
+    /// Cortex-M4 instructions per frame in `mcu-bench`, where the pipeline stamps every frame).
     pub fn ticks_to_us(ticks: u64, base_rate_mhz: u64) -> u64 {
-        // < 2⁶⁴ · 2³⁰: the product cannot wrap; a rate of 0 counts as 1 mHz.
-        let rate = NonZeroU128::from(NonZeroU64::new(base_rate_mhz).unwrap_or(NonZeroU64::MIN));
-        (u128::from(ticks).wrapping_mul(1_000_000_000) / rate) as u64
+        // A rate of 0 counts as 1 mHz.
+        let rate = NonZeroU64::new(base_rate_mhz).unwrap_or(NonZeroU64::MIN);
+        if rate.get() < 1 << 34 {
+            let (q, m) = (ticks / rate, ticks % rate);
+            // m < 2³⁴: m · 10⁹ < 2⁶⁴ cannot wrap; q · 10⁹ and the sum wrap modulo 2⁶⁴, as the 128-bit form's cast.
+            return q
+                .wrapping_mul(1_000_000_000)
+                .wrapping_add(m.wrapping_mul(1_000_000_000) / rate);
+        }
+        // < 2⁶⁴ · 2³⁰: the product cannot wrap.
+        (u128::from(ticks).wrapping_mul(1_000_000_000) / NonZeroU128::from(rate)) as u64
+    }
+}
+
+// Test code may panic: a failed assertion is how a test reports.
+#[cfg(test)]
+#[allow(clippy::arithmetic_side_effects)]
+mod tests {
+    use super::*;
+
+    /// The split form against the 128-bit definition on the edges and 100 000 random (ticks, rate) pairs.
+    #[test]
+    fn ticks_to_us_equals_the_128_bit_quotient() {
+        let reference =
+            |t: u64, r: u64| (u128::from(t) * 1_000_000_000 / u128::from(r.max(1))) as u64;
+        let mut rng = crate::testutil::Rng::new(5);
+        let rates = [0, 1, 2, 9_676_800, (1 << 34) - 1, 1 << 34, u64::MAX];
+        let ticks = [0, 1, 17, 9_676_799, 9_676_800, u64::MAX - 1, u64::MAX];
+        for (&t, &r) in ticks.iter().flat_map(|t| rates.iter().map(move |r| (t, r))) {
+            assert_eq!(FrameClock::ticks_to_us(t, r), reference(t, r), "{t} {r}");
+        }
+        for _ in 0..100_000 {
+            let t = rng.next_u64() >> (rng.next_u64() % 64);
+            let r = rng.next_u64() >> (rng.next_u64() % 64);
+            assert_eq!(FrameClock::ticks_to_us(t, r), reference(t, r), "{t} {r}");
+        }
     }
 }
