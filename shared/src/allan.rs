@@ -69,6 +69,7 @@ impl Sum128 {
     }
 
     /// Adds `d²` (cannot wrap: see the module proof).
+    #[inline(always)]
     fn add_square(&mut self, d: i64) {
         let (lo, hi) = square_wide(d.unsigned_abs());
         let s = self
