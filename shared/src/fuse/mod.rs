@@ -687,14 +687,15 @@ impl<const G: usize> Fusion<G> {
             let kind = usize::from(a >= 3);
             let candidates = Self::ALL & !excluded.get(kind).copied().unwrap_or(0);
             // The axis's column, and the candidates with padding that sorts after them, in one pass.
-            let (mut column, mut sorted) = ([0i32; G], [i32::MAX; G]);
-            for (g, ((c, s), row)) in column.iter_mut().zip(&mut sorted).zip(axes).enumerate() {
-                let v = row.get(a).copied().unwrap_or(0);
-                *c = v;
-                if candidates >> g & 1 != 0 {
+            // (`from_fn` writes the column in place: a zeroed array filled by a loop cost a `memclr` call per axis.)
+            let mut sorted = [i32::MAX; G];
+            let column: [i32; G] = core::array::from_fn(|g| {
+                let v = axes.get(g).and_then(|row| row.get(a)).copied().unwrap_or(0);
+                if let Some(s) = sorted.get_mut(g).filter(|_| candidates >> g & 1 != 0) {
                     *s = v;
                 }
-            }
+                v
+            });
             let (n, fused, out_mask, mask) =
                 self.fuse_axis(a, &column, sorted, candidates, kind, fold);
             (*value, *used, *used_mask) = (fused, n, mask);
