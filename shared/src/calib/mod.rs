@@ -87,7 +87,14 @@ fn round_q24_sat(acc: i64) -> i32 {
     const HALF: i64 = 1 << (2 * FRAC_BITS - 1);
     // |acc| < 2⁶²: the sums stay within ±(2⁶² + 2²³), no wrap.
     let q = acc.wrapping_add(HALF).wrapping_add(acc >> 63) >> (2 * FRAC_BITS);
-    q.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+    // Saturation as "does the low word, sign-extended, give q back?" (one comparison of the high word on the M4,
+    // where a two-sided 64-bit clamp is two 64-bit comparisons): if not, i32::MIN or i32::MAX by q's sign.
+    let narrow = q as i32;
+    if i64::from(narrow) == q {
+        narrow
+    } else {
+        ((q >> 63) as i32) ^ i32::MAX
+    }
 }
 
 fn affine<const N: usize>(m: &[[i32; N]; 3], b: &[i32; N], raw: &[i32; N]) -> [i32; 3] {
