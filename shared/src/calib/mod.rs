@@ -76,6 +76,17 @@ pub struct GroupCal {
     pub accel_bias_q12: [i32; ACCEL_RAW],
 }
 
+/// `x` saturated to `i32`: the low word when, sign-extended, it gives `x` back (one comparison of the high word on
+/// the Cortex-M4, where a two-sided 64-bit clamp is two 64-bit comparisons), else `i32::MIN` or `i32::MAX` by sign.
+pub(crate) fn saturate_i32(x: i64) -> i32 {
+    let narrow = x as i32;
+    if i64::from(narrow) == x {
+        narrow
+    } else {
+        ((x >> 63) as i32) ^ i32::MAX
+    }
+}
+
 /// Rounds `acc / 2²⁴` (a Q12 × Q12 product sum) to the nearest integer, halves away from zero, saturating to
 /// `i32`, for |acc| < 2⁶² (what [`affine`] can produce).
 ///
@@ -87,14 +98,7 @@ fn round_q24_sat(acc: i64) -> i32 {
     const HALF: i64 = 1 << (2 * FRAC_BITS - 1);
     // |acc| < 2⁶²: the sums stay within ±(2⁶² + 2²³), no wrap.
     let q = acc.wrapping_add(HALF).wrapping_add(acc >> 63) >> (2 * FRAC_BITS);
-    // Saturation as "does the low word, sign-extended, give q back?" (one comparison of the high word on the M4,
-    // where a two-sided 64-bit clamp is two 64-bit comparisons): if not, i32::MIN or i32::MAX by q's sign.
-    let narrow = q as i32;
-    if i64::from(narrow) == q {
-        narrow
-    } else {
-        ((q >> 63) as i32) ^ i32::MAX
-    }
+    saturate_i32(q)
 }
 
 fn affine<const N: usize>(m: &[[i32; N]; 3], b: &[i32; N], raw: &[i32; N]) -> [i32; 3] {

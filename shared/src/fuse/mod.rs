@@ -387,9 +387,7 @@ pub(crate) fn div_round(num: i64, den: i64) -> i32 {
     let s = num >> 63;
     // |num| ≤ 2⁶³ and half < 2⁶³: the sum cannot wrap.
     let q = (num.unsigned_abs().wrapping_add(half) / den) as i64;
-    (q ^ s)
-        .wrapping_sub(s)
-        .clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+    crate::calib::saturate_i32((q ^ s).wrapping_sub(s))
 }
 
 /// Median of a non-empty sorted slice (mean of the middle two for even length, rounded as `div_round`).
