@@ -1,5 +1,7 @@
 //! Deterministic input for benchmarks of the core: the same frame stream for the host's criterion benchmarks and
 //! profilers and for instruction counts on an emulated Cortex-M4 (`mcu-bench/`), so that their figures compare.
+//!
+//! Built with the `bench` feature (and for the crate's tests): not part of the flight build.
 
 use crate::calib::board::nominal_codes;
 use crate::wire::FrameRepr;

@@ -8,6 +8,7 @@
 #![deny(missing_docs)]
 
 pub mod allan;
+#[cfg(any(test, feature = "bench"))]
 pub mod bench;
 pub mod bus;
 pub mod calib;
