@@ -1,22 +1,22 @@
-//! Test helpers: a small seeded generator of uniform and normal numbers (SplitMix64, Box–Muller).
+//! Test helpers: seeded uniform and normal numbers (SplitMix64, Box–Muller), rms and mean.
 extern crate std;
 
-/// Seeded random numbers for tests.
-pub struct Rng(u64);
+use rand_xoshiro::SplitMix64;
+use rand_xoshiro::rand_core::{Rng as _, SeedableRng};
+
+/// Seeded random numbers for tests: `rand_xoshiro`'s SplitMix64 (the ground's tests use the same crate), with the
+/// uniform and normal draws the tests need.
+pub struct Rng(SplitMix64);
 
 impl Rng {
     /// A generator from a seed.
     pub fn new(seed: u64) -> Self {
-        Self(seed)
+        Self(SplitMix64::seed_from_u64(seed))
     }
 
     /// Uniform 64-bit word.
     pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+        self.0.next_u64()
     }
 
     /// Uniform in (0, 1].
