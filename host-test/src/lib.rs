@@ -16,3 +16,5 @@ pub mod replay;
 pub mod seedfit;
 pub mod sim;
 pub mod simcli;
+pub mod stats;
+pub mod testrng;

@@ -27,6 +27,7 @@ use super::linalg::{
 use super::report::{ResidualReport, static_residuals_mg};
 use super::{CalibError, Mat3, StaticInterval, Vec3};
 use crate::mimu::{ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS};
+use crate::stats::rms;
 
 mod refine;
 use refine::*;
@@ -99,13 +100,6 @@ fn check_finite(v: &[Vec3], what: &'static str) -> Result<(), CalibError> {
     } else {
         Err(CalibError::NonFinite(what))
     }
-}
-
-fn rms(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
 }
 
 fn sym_from(p: &[f64]) -> Matrix3<f64> {
@@ -320,7 +314,7 @@ pub fn align_cluster(
     Ok(ClusterAlignment {
         rotations: rot.iter().map(arr3).collect(),
         mean_directions: v.iter().map(arrv).collect(),
-        residual_rms_deg: residual_deg.iter().map(|r| rms(r)).collect(),
+        residual_rms_deg: residual_deg.iter().map(rms).collect(),
         residual_deg,
     })
 }

@@ -652,13 +652,13 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
     }
 
     Ok(Report {
-        gap_before: rms(gaps.fit_before.into_iter()),
-        gap_after: rms(gaps.fit_after.into_iter()),
+        gap_before: rms(gaps.fit_before),
+        gap_after: rms(gaps.fit_after),
         heldout: HeldOut {
-            gap_before: rms(gaps.held_before.into_iter()),
-            gap_after: rms(gaps.held_after.into_iter()),
-            rms_before: rms(gaps.raw_before.into_iter()),
-            rms_after: rms(gaps.raw_after.into_iter()),
+            gap_before: rms(gaps.held_before),
+            gap_after: rms(gaps.held_after),
+            rms_before: rms(gaps.raw_before),
+            rms_after: rms(gaps.raw_after),
         },
         effects: merge_effects(all_effects),
         axes,

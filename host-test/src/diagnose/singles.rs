@@ -1,21 +1,7 @@
 //! Per half and axis: the single sensors' and the cluster's Allan variances, EDFs and noise types, and the small statistics they use.
 
 use super::*;
-
-/// Median of the finite values of a slice (NaN if none).
-pub(super) fn median(v: &[f64]) -> f64 {
-    let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    if s.is_empty() {
-        return f64::NAN;
-    }
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
-}
+pub(super) use crate::stats::{median, rms};
 
 pub(super) fn octave(an: &mut Analyzer, y: &[f64], tau0: f64) -> Vec<AnalysisPoint> {
     an.analyze(
@@ -36,11 +22,6 @@ pub(super) fn weighted_mean(series: &[&[f64]], w: &[f64]) -> Vec<f64> {
         }
     }
     out
-}
-
-pub(super) fn rms(v: impl Iterator<Item = f64>) -> f64 {
-    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
-    if n == 0 { 0.0 } else { (s / n as f64).sqrt() }
 }
 
 /// The typical model as five terms.
