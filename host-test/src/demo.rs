@@ -94,8 +94,7 @@ pub fn run(
     if (opts.hours - 8.0).abs() < 1e-9 {
         cfg.samples = crate::sim::preset::SEED_SAMPLES;
     }
-    let base_rate_hz = 9676.8;
-    cfg.frames = simcli::frame_opts(cfg.rate_hz, base_rate_hz);
+    cfg.frames = simcli::frame_opts(cfg.rate_hz, crate::FPGA_BASE_RATE_HZ);
     let total = cfg.samples;
     let mut record = simcli::RecordingSink::new(total as usize, cfg.thermal.is_some());
     let mut sim = Simulator::new(cfg).map_err(sim_err)?;

@@ -9,6 +9,10 @@
 use super::Decoded;
 use core::num::{NonZeroU64, NonZeroU128};
 
+/// The FPGA's data-set rate before decimation, in millihertz: 9676.8 Hz. A frame of decimation N comes every N + 1
+/// base periods (N = 15: 604.8 frames/s). The one definition of this rate; everything else derives from it.
+pub const FPGA_BASE_RATE_MILLIHZ: u64 = 9_676_800;
+
 /// Frame time keeping (see module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FrameClock {
@@ -68,10 +72,10 @@ impl FrameClock {
         tick
     }
 
-    /// `ticks` base periods in µs, for a base rate in mHz (rounded down).
-    pub fn ticks_to_us(ticks: u64, base_rate_mhz: u64) -> u64 {
-        // < 2⁶⁴ · 2³⁰: the product cannot wrap; a rate of 0 counts as 1 mHz.
-        let rate = NonZeroU128::from(NonZeroU64::new(base_rate_mhz).unwrap_or(NonZeroU64::MIN));
+    /// `ticks` base periods in µs, for a base rate in millihertz (rounded down).
+    pub fn ticks_to_us(ticks: u64, base_rate_millihz: u64) -> u64 {
+        // < 2⁶⁴ · 2³⁰: the product cannot wrap; a rate of 0 counts as 1 millihertz.
+        let rate = NonZeroU128::from(NonZeroU64::new(base_rate_millihz).unwrap_or(NonZeroU64::MIN));
         (u128::from(ticks).wrapping_mul(1_000_000_000) / rate) as u64
     }
 }

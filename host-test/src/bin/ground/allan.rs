@@ -6,6 +6,7 @@ use clap::ValueEnum;
 use host_test::adev::{self, AdevRequest};
 use host_test::allan::{DevKind, TauSpec};
 use host_test::{load, plot};
+use shared::wire::clock::FPGA_BASE_RATE_MILLIHZ;
 use std::path::PathBuf;
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -69,7 +70,7 @@ pub fn run(a: Args) -> Result<()> {
     let t0 = std::time::Instant::now();
     let cal = any_calib(&a.calib)?;
     let pb = spinner("reading");
-    let mut loaded = load::load_with(&a.recording, cal.as_ref(), 9_676_800)?;
+    let mut loaded = load::load_with(&a.recording, cal.as_ref(), FPGA_BASE_RATE_MILLIHZ)?;
     pb.finish_and_clear();
     print_loaded(&loaded);
     if let Some(w) = &a.window {

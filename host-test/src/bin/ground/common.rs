@@ -8,7 +8,8 @@ use std::path::{Path, PathBuf};
 /// Highest FPGA base rate accepted, Hz.
 pub const MAX_BASE_RATE_HZ: f64 = 1e9;
 
-pub fn mhz(hz: f64) -> Result<u64> {
+/// A base rate given in Hz as millihertz, the unit of the core's configuration; an error outside (0, 1e9] Hz.
+pub fn millihz(hz: f64) -> Result<u64> {
     if !(hz.is_finite() && hz > 0.0 && hz <= MAX_BASE_RATE_HZ) {
         bail!(
             "the base rate must be a positive number of Hz up to {MAX_BASE_RATE_HZ:e}, found {hz}"

@@ -4,6 +4,7 @@ use crate::common::{any_calib, apply_window, print_loaded, spinner};
 use anyhow::{Context, Result};
 use clap::ValueEnum;
 use host_test::load;
+use shared::wire::clock::FPGA_BASE_RATE_MILLIHZ;
 use std::path::PathBuf;
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -46,7 +47,7 @@ pub fn run(a: Args) -> Result<()> {
     use host_test::diagnose::{self, Options, WeightRule, report};
     let cal = any_calib(&a.calib)?;
     let pb = spinner("reading");
-    let mut loaded = load::load_with(&a.recording, cal.as_ref(), 9_676_800)?;
+    let mut loaded = load::load_with(&a.recording, cal.as_ref(), FPGA_BASE_RATE_MILLIHZ)?;
     // Through `suspend`: the spinner's own `println` prints nothing when stderr is not a terminal.
     pb.suspend(|| print_loaded(&loaded));
     if let Some(w) = &a.window {

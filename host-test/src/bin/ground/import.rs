@@ -1,6 +1,6 @@
 //! `ground import`: a frame log, MIMU4444 stream or CSV to the interchange CSV.
 
-use crate::common::{any_calib, mhz, print_loaded, spinner};
+use crate::common::{any_calib, millihz, print_loaded, spinner};
 use anyhow::{Context, Result};
 use host_test::load;
 use std::path::PathBuf;
@@ -17,14 +17,14 @@ pub struct Args {
     #[arg(long)]
     calib: Option<PathBuf>,
     /// FPGA base rate before decimation, Hz (frame logs).
-    #[arg(long, default_value_t = 9676.8)]
+    #[arg(long, default_value_t = host_test::FPGA_BASE_RATE_HZ)]
     base_rate_hz: f64,
 }
 
 pub fn run(a: Args) -> Result<()> {
     let cal = any_calib(&a.calib)?;
     let pb = spinner("reading");
-    let loaded = load::load_with(&a.input, cal.as_ref(), mhz(a.base_rate_hz)?)?;
+    let loaded = load::load_with(&a.input, cal.as_ref(), millihz(a.base_rate_hz)?)?;
     pb.set_message("writing");
     loaded
         .recording

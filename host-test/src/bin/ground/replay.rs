@@ -1,6 +1,6 @@
 //! `ground replay`: a frame log through the flight core, to the telemetry stream it would send.
 
-use crate::common::{bar, calib, mhz};
+use crate::common::{bar, calib, millihz};
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use host_test::load;
@@ -42,7 +42,7 @@ pub struct Args {
     #[arg(long)]
     check: bool,
     /// FPGA base rate before decimation, Hz.
-    #[arg(long, default_value_t = 9676.8)]
+    #[arg(long, default_value_t = host_test::FPGA_BASE_RATE_HZ)]
     base_rate_hz: f64,
     /// CSP header version on the bus (1: libcsp 1.x, Yamcs; 2: libcsp 2.x's default).
     #[arg(long, default_value = "1")]
@@ -55,7 +55,7 @@ pub fn run(a: Args) -> Result<()> {
     let cal = calib(&a.calib)?.unwrap_or_else(shared::calib::CalibrationTable::factory);
     let mut config = PipelineConfig {
         frames_per_output: a.frames_per_output,
-        fpga_base_rate_mhz: mhz(a.base_rate_hz)?,
+        fpga_base_rate_mhz: millihz(a.base_rate_hz)?,
         ..PipelineConfig::DEFAULT
     };
     config.fusion.mode = match a.fusion {

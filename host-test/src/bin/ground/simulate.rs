@@ -1,6 +1,6 @@
 //! `ground simulate`: a simulated cluster recording (frame log or CSV).
 
-use crate::common::{bar, mhz};
+use crate::common::{bar, millihz};
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use std::path::PathBuf;
@@ -44,7 +44,7 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// FPGA base rate before decimation, Hz.
-    #[arg(long, default_value_t = 9676.8)]
+    #[arg(long, default_value_t = host_test::FPGA_BASE_RATE_HZ)]
     base_rate_hz: f64,
     /// True angular rate of the board, °/s (x,y,z; e.g. a rate table).
     #[arg(long, value_delimiter = ',', num_args = 1..=3, allow_hyphen_values = true)]
@@ -75,7 +75,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     cfg.motion = a.motion;
     let frame_log = simcli::check_rates(&a.out, a.rate, a.base_rate_hz)?;
-    mhz(a.base_rate_hz).context("--base-rate-hz")?;
+    millihz(a.base_rate_hz).context("--base-rate-hz")?;
     cfg.rate_hz = a.rate;
     let samples = match (a.samples, a.hours) {
         _ if a.seconds.is_some() => match a.seconds {
