@@ -55,7 +55,7 @@ pub fn run(a: Args) -> Result<()> {
     let cal = calib(&a.calib)?.unwrap_or_else(shared::calib::CalibrationTable::factory);
     let mut config = PipelineConfig {
         frames_per_output: a.frames_per_output,
-        fpga_base_rate_mhz: millihz(a.base_rate_hz)?,
+        fpga_base_rate_millihz: millihz(a.base_rate_hz)?,
         ..PipelineConfig::DEFAULT
     };
     config.fusion.mode = match a.fusion {
