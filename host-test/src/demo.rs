@@ -196,15 +196,12 @@ pub fn run(
         .collect();
     let mut core_allan: Vec<Vec<(usize, f64, u32)>> = vec![Vec::new(); ALLAN_CHANNELS];
     let mut tau0_s = 1.0 / 18.9;
-    for m in &log.messages {
-        if let Telemetry::Allan(a) = m
-            && let Some(v) = a.level.avar()
-            && let Some(c) = core_allan.get_mut(usize::from(a.channel))
-        {
-            if a.level.count >= MIN_DIFFERENCES {
-                c.push((usize::from(a.level.level), v.sqrt() / 1e6, a.level.count));
+    for p in log.allan() {
+        if let Some(c) = core_allan.get_mut(p.channel) {
+            if p.count >= MIN_DIFFERENCES {
+                c.push((p.level, p.dev, p.count));
             }
-            tau0_s = a.tau0_ps as f64 * 1e-12;
+            tau0_s = p.tau0_s;
         }
     }
     let n = fused.len();
