@@ -14,15 +14,15 @@
 use crate::allan::{self, AnalysisPoint, DevKind, TauSpec};
 use crate::formats::telemetry::TelemetryLog;
 use crate::plot::{self, Curve, Panel, Style};
-use crate::replay::host_pipeline;
+use crate::replay::HostCore;
 use crate::seedfit::{self, AxisFit, SEED_TABLE};
 use crate::sim::{Chunk, Simulator};
 use crate::simcli;
 use anyhow::{Context, Result};
-use shared::bus::{BusConfig, BusNode, MAX_WIRE_FRAME};
+use shared::bus::BusConfig;
 use shared::calib::{AXES, CalibrationTable, RawCounts};
-use shared::pipeline::{ALLAN_CHANNELS, FUSED_CHANNEL0, Output, PipelineConfig};
-use shared::telemetry::{Command, CommandEnvelope, MAX_MESSAGE_LEN, Telemetry, encode};
+use shared::pipeline::{ALLAN_CHANNELS, FUSED_CHANNEL0, PipelineConfig};
+use shared::telemetry::Command;
 use shared::wire::frame::GROUPS;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -109,18 +109,8 @@ pub fn run(
     config.fusion.mode = shared::fuse::FusionMode::Equal;
     config.fusion.robust = false;
     let cal = CalibrationTable::<GROUPS>::factory();
-    let mut p = host_pipeline(config, cal);
-    let node = BusNode::new(BusConfig::DEFAULT);
-    let mut wire = vec![0u8; MAX_WIRE_FRAME];
-    let mut payload = vec![0u8; MAX_MESSAGE_LEN];
-    let mut telemetry: Vec<u8> = Vec::with_capacity(total as usize * 60);
-    let mut send = |t: &Telemetry, telemetry: &mut Vec<u8>| {
-        if let Ok(p) = encode(t, &mut payload)
-            && let Ok(n) = node.encode_telemetry(p, &mut wire)
-        {
-            telemetry.extend_from_slice(&wire[..n]);
-        }
-    };
+    let mut core = HostCore::new(config, cal, BusConfig::DEFAULT, false);
+    core.reserve(total as usize * 60);
     // Single-sensor statistics through the core's calibration: Σx, Σx² per group and axis (µ-units).
     let mut sum = [[0f64; AXES]; GROUPS];
     let mut sum2 = [[0f64; AXES]; GROUPS];
@@ -151,40 +141,20 @@ pub fn run(
             }
             bytes.extend_from_slice(&f.to_bytes());
         }
-        let mut input = &bytes[..];
-        while !input.is_empty() {
-            p.push_link(&mut input);
-            while let Some(o) = p.poll() {
-                if let Output::Telemetry(t) = o {
-                    send(&t, &mut telemetry);
-                }
-            }
-        }
+        core.push(&bytes);
         done += chunk.len as u64;
         progress(done, total);
     }
     // As the ground would: ask for every Allan channel.
-    let mut cmd = [0u8; 32];
-    if let Ok(m) = encode(
-        &CommandEnvelope {
-            tag: 1,
-            cmd: Command::AllanRequest {
-                first: 0,
-                count: ALLAN_CHANNELS as u8,
-            },
+    core.command(
+        1,
+        Command::AllanRequest {
+            first: 0,
+            count: ALLAN_CHANNELS as u8,
         },
-        &mut cmd,
-    ) {
-        p.handle_command(m);
-    }
-    while let Some(o) = p.poll() {
-        if let Output::Telemetry(t) = o {
-            send(&t, &mut telemetry);
-        }
-    }
-    while let Some(t) = p.poll_dump() {
-        send(&t, &mut telemetry);
-    }
+    );
+    let sent = core.finish();
+    let telemetry = sent.telemetry;
     let t_core = t0.elapsed().as_secs_f64();
     std::fs::write(out.join("telemetry.kiss"), &telemetry)?;
 
@@ -356,7 +326,7 @@ pub fn run(
         table1,
         table2,
         fits,
-        frames: p.link_counters().frames.into(),
+        frames: sent.counters.frames.into(),
         telemetry_bytes: telemetry.len(),
         allan_core_vs_ground: worst,
         seconds: [
