@@ -538,8 +538,8 @@ fn a_store_during_streaming_loses_at_most_the_documented_frames_and_no_command()
     // the lost frames), within one output interval.
     let last = last_fused(&ground.telemetry);
     let t_end_us =
-        (frames_n as u64 - 1) * 16 * 1_000_000_000 / PipelineConfig::DEFAULT.fpga_base_rate_mhz;
-    let interval_us = 32 * 16 * 1_000_000_000 / PipelineConfig::DEFAULT.fpga_base_rate_mhz;
+        (frames_n as u64 - 1) * 16 * 1_000_000_000 / PipelineConfig::DEFAULT.fpga_base_rate_millihz;
+    let interval_us = 32 * 16 * 1_000_000_000 / PipelineConfig::DEFAULT.fpga_base_rate_millihz;
     assert!(
         last.t_us <= t_end_us && t_end_us - last.t_us < 2 * interval_us,
         "last report at {} µs, last frame at {t_end_us} µs",

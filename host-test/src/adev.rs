@@ -403,18 +403,8 @@ mod tests {
     use crate::formats::csv::Column;
 
     fn white(seed: u64, n: usize, sigma: f64) -> Vec<f64> {
-        // Box–Muller on SplitMix64: independent of the simulator under test elsewhere.
-        let mut s = seed;
-        let mut u = || {
-            s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = s;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64 + 1e-18
-        };
-        (0..n)
-            .map(|_| sigma * (-2.0 * u().ln()).sqrt() * (2.0 * std::f64::consts::PI * u()).cos())
-            .collect()
+        // Independent of the simulator under test elsewhere.
+        crate::testrng::TestRng::new(seed).normals(n, sigma)
     }
 
     #[test]

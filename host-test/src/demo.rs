@@ -14,15 +14,15 @@
 use crate::allan::{self, AnalysisPoint, DevKind, TauSpec};
 use crate::formats::telemetry::TelemetryLog;
 use crate::plot::{self, Curve, Panel, Style};
-use crate::replay::host_pipeline;
+use crate::replay::HostCore;
 use crate::seedfit::{self, AxisFit, SEED_TABLE};
 use crate::sim::{Chunk, Simulator};
 use crate::simcli;
 use anyhow::{Context, Result};
-use shared::bus::{BusConfig, BusNode, MAX_WIRE_FRAME};
+use shared::bus::BusConfig;
 use shared::calib::{AXES, CalibrationTable, RawCounts};
-use shared::pipeline::{ALLAN_CHANNELS, FUSED_CHANNEL0, Output, PipelineConfig};
-use shared::telemetry::{Command, CommandEnvelope, MAX_MESSAGE_LEN, Telemetry, encode};
+use shared::pipeline::{ALLAN_CHANNELS, FUSED_CHANNEL0, PipelineConfig};
+use shared::telemetry::Command;
 use shared::wire::frame::GROUPS;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -94,8 +94,7 @@ pub fn run(
     if (opts.hours - 8.0).abs() < 1e-9 {
         cfg.samples = crate::sim::preset::SEED_SAMPLES;
     }
-    let base_rate_hz = 9676.8;
-    cfg.frames = simcli::frame_opts(cfg.rate_hz, base_rate_hz);
+    cfg.frames = simcli::frame_opts(cfg.rate_hz, crate::FPGA_BASE_RATE_HZ);
     let total = cfg.samples;
     let mut record = simcli::RecordingSink::new(total as usize, cfg.thermal.is_some());
     let mut sim = Simulator::new(cfg).map_err(sim_err)?;
@@ -110,18 +109,8 @@ pub fn run(
     config.fusion.mode = shared::fuse::FusionMode::Equal;
     config.fusion.robust = false;
     let cal = CalibrationTable::<GROUPS>::factory();
-    let mut p = host_pipeline(config, cal);
-    let node = BusNode::new(BusConfig::DEFAULT);
-    let mut wire = vec![0u8; MAX_WIRE_FRAME];
-    let mut payload = vec![0u8; MAX_MESSAGE_LEN];
-    let mut telemetry: Vec<u8> = Vec::with_capacity(total as usize * 60);
-    let mut send = |t: &Telemetry, telemetry: &mut Vec<u8>| {
-        if let Ok(p) = encode(t, &mut payload)
-            && let Ok(n) = node.encode_telemetry(p, &mut wire)
-        {
-            telemetry.extend_from_slice(&wire[..n]);
-        }
-    };
+    let mut core = HostCore::new(config, cal, BusConfig::DEFAULT, false);
+    core.reserve(total as usize * 60);
     // Single-sensor statistics through the core's calibration: Σx, Σx² per group and axis (µ-units).
     let mut sum = [[0f64; AXES]; GROUPS];
     let mut sum2 = [[0f64; AXES]; GROUPS];
@@ -152,40 +141,20 @@ pub fn run(
             }
             bytes.extend_from_slice(&f.to_bytes());
         }
-        let mut input = &bytes[..];
-        while !input.is_empty() {
-            p.push_link(&mut input);
-            while let Some(o) = p.poll() {
-                if let Output::Telemetry(t) = o {
-                    send(&t, &mut telemetry);
-                }
-            }
-        }
+        core.push(&bytes);
         done += chunk.len as u64;
         progress(done, total);
     }
     // As the ground would: ask for every Allan channel.
-    let mut cmd = [0u8; 32];
-    if let Ok(m) = encode(
-        &CommandEnvelope {
-            tag: 1,
-            cmd: Command::AllanRequest {
-                first: 0,
-                count: ALLAN_CHANNELS as u8,
-            },
+    core.command(
+        1,
+        Command::AllanRequest {
+            first: 0,
+            count: ALLAN_CHANNELS as u8,
         },
-        &mut cmd,
-    ) {
-        p.handle_command(m);
-    }
-    while let Some(o) = p.poll() {
-        if let Output::Telemetry(t) = o {
-            send(&t, &mut telemetry);
-        }
-    }
-    while let Some(t) = p.poll_dump() {
-        send(&t, &mut telemetry);
-    }
+    );
+    let sent = core.finish();
+    let telemetry = sent.telemetry;
     let t_core = t0.elapsed().as_secs_f64();
     std::fs::write(out.join("telemetry.kiss"), &telemetry)?;
 
@@ -197,15 +166,12 @@ pub fn run(
         .collect();
     let mut core_allan: Vec<Vec<(usize, f64, u32)>> = vec![Vec::new(); ALLAN_CHANNELS];
     let mut tau0_s = 1.0 / 18.9;
-    for m in &log.messages {
-        if let Telemetry::Allan(a) = m
-            && let Some(v) = a.level.avar()
-            && let Some(c) = core_allan.get_mut(usize::from(a.channel))
-        {
-            if a.level.count >= MIN_DIFFERENCES {
-                c.push((usize::from(a.level.level), v.sqrt() / 1e6, a.level.count));
+    for p in log.allan() {
+        if let Some(c) = core_allan.get_mut(p.channel) {
+            if p.count >= MIN_DIFFERENCES {
+                c.push((p.level, p.dev, p.count));
             }
-            tau0_s = a.tau0_ps as f64 * 1e-12;
+            tau0_s = p.tau0_s;
         }
     }
     let n = fused.len();
@@ -360,7 +326,7 @@ pub fn run(
         table1,
         table2,
         fits,
-        frames: p.link_counters().frames.into(),
+        frames: sent.counters.frames.into(),
         telemetry_bytes: telemetry.len(),
         allan_core_vs_ground: worst,
         seconds: [

@@ -2,6 +2,10 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+/// The FPGA base rate in Hz (9676.8), for the tools' options and the simulator: derived from
+/// [`shared::wire::clock::FPGA_BASE_RATE_MILLIHZ`], the one definition (the same `f64` as the literal).
+pub const FPGA_BASE_RATE_HZ: f64 = shared::wire::clock::FPGA_BASE_RATE_MILLIHZ as f64 / 1000.0;
+
 pub mod adev;
 pub mod allan;
 pub mod calibrate;
@@ -16,3 +20,5 @@ pub mod replay;
 pub mod seedfit;
 pub mod sim;
 pub mod simcli;
+pub mod stats;
+pub mod testrng;

@@ -171,7 +171,7 @@ pub fn link_warning(path: &Path, c: &shared::wire::LinkCounters, output: &str) -
 
 /// Loads a recording; raw formats go through `cal` (the factory default of our board, or the MIMU4444's nominal
 /// scales, when `None`).
-pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_mhz: u64) -> Result<Loaded> {
+pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_millihz: u64) -> Result<Loaded> {
     // A CSV is known by its name and streamed (never held whole in memory); the others are read whole.
     let bytes = match detect(path, &[]) {
         Ok(InputKind::Csv) => Vec::new(),
@@ -272,7 +272,7 @@ pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_mhz: u64) -> 
                 );
             }
             let factory = CalibrationTable::factory();
-            let recording = log.to_recording(board.unwrap_or(&factory), base_rate_mhz);
+            let recording = log.to_recording(board.unwrap_or(&factory), base_rate_millihz);
             let c = log.counters;
             let notes = vec![format!(
                 "frame log: {} frames, {} CRC errors, {} bytes skipped, {} frames missing by sequence{}",

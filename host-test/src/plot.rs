@@ -1,6 +1,8 @@
 //! Log-log Allan-deviation plots in panels (PNG or SVG by the file's extension). Text uses DejaVu Sans, loaded at
 //! run time from the system (Debian package `fonts-dejavu-core`) or from `$GROUND_FONT`.
 
+use crate::adev;
+use crate::formats::SensorKind;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::Path;
@@ -112,6 +114,70 @@ pub fn adev_panels(
             path.display()
         )),
     }
+}
+
+/// The Allan-deviation figure of `ground allan`: per sensor kind and axis a panel with the single sensors thin, the
+/// independent (√N) expectation dashed and the cluster mean bold with its confidence bars; `source` names the recording
+/// in the title.
+pub fn adev_series(path: &Path, series: &[adev::Series], source: &Path) -> Result<(), String> {
+    let mut panels = Vec::new();
+    for kind in [SensorKind::Gyro, SensorKind::Accel] {
+        for axis in 0..3 {
+            let singles: Vec<&adev::Series> = series
+                .iter()
+                .filter(|s| s.kind == kind && s.axis == axis && s.group.is_some())
+                .collect();
+            let Some(cluster) = series
+                .iter()
+                .find(|s| s.kind == kind && s.axis == axis && s.group.is_none())
+            else {
+                continue;
+            };
+            let mut curves: Vec<Curve> = singles
+                .iter()
+                .enumerate()
+                .map(|(i, s)| Curve {
+                    label: (i == 0).then(|| "single sensors".into()),
+                    points: s.points.iter().map(|p| (p.tau_s, p.dev)).collect(),
+                    bars: vec![],
+                    style: Style::Thin(i),
+                })
+                .collect();
+            if !singles.is_empty() {
+                let label = format!(
+                    "independent expectation (√{} for equal sensors)",
+                    singles.len()
+                );
+                curves.push(Curve {
+                    label: Some(label),
+                    points: adev::independent_mean_expectation(&singles),
+                    bars: vec![],
+                    style: Style::Dashed,
+                });
+            }
+            curves.push(Curve {
+                label: Some(format!("cluster mean ({} groups)", cluster.members)),
+                points: cluster.points.iter().map(|p| (p.tau_s, p.dev)).collect(),
+                bars: cluster
+                    .points
+                    .iter()
+                    .filter_map(|p| Some((p.tau_s, p.dev_lo?, p.dev_hi?)))
+                    .collect(),
+                style: Style::Bold,
+            });
+            panels.push(Panel {
+                title: format!("{} {}", kind.name(), ['x', 'y', 'z'][axis]),
+                y_label: format!("deviation [{}]", kind.unit()),
+                curves,
+            });
+        }
+    }
+    adev_panels(
+        path,
+        &format!("Allan deviation — {}", source.display()),
+        &panels,
+        3,
+    )
 }
 
 fn draw<DB: DrawingBackend>(

@@ -98,19 +98,87 @@ pub fn calibrate_f64(cal: &GroupCal, raw: &RawCounts) -> [f64; AXES] {
     out
 }
 
-struct Sink {
+/// The flight core on the host, driven as the MCU drives it: bytes from the FPGA link in, every output polled after
+/// each push, telemetry encoded for the bus (postcard, CSP, KISS) as the MCU's link task sends it. `replay` and the
+/// demo both run the core through it.
+pub struct HostCore {
+    /// The core.
+    pub pipeline: HostPipeline,
     node: BusNode,
+    keep_messages: bool,
     out: ReplayOutput,
     payload: Vec<u8>,
     wire: Vec<u8>,
 }
 
-impl Sink {
-    fn take(&mut self, o: Output) {
+impl HostCore {
+    /// A core with `config` and `cal` (see [`host_pipeline`]) sending on `bus`; `keep_messages`: also keep every
+    /// message sent (not only its bus bytes).
+    pub fn new(
+        config: PipelineConfig,
+        cal: CalibrationTable<GROUPS>,
+        bus: BusConfig,
+        keep_messages: bool,
+    ) -> Self {
+        Self {
+            pipeline: host_pipeline(config, cal),
+            node: BusNode::new(bus),
+            keep_messages,
+            out: ReplayOutput::default(),
+            payload: vec![0; MAX_MESSAGE_LEN],
+            wire: vec![0; MAX_WIRE_FRAME],
+        }
+    }
+
+    /// Room for `bytes` more bytes of telemetry.
+    pub fn reserve(&mut self, bytes: usize) {
+        self.out.telemetry.reserve(bytes);
+    }
+
+    /// Feeds link bytes through the core, taking its outputs after each frame's worth; consumes all of `input`.
+    pub fn push(&mut self, mut input: &[u8]) {
+        while !input.is_empty() {
+            self.push_some(&mut input);
+        }
+    }
+
+    /// One `push_link` of the core (it takes what it can from `input`), then its outputs.
+    pub fn push_some(&mut self, input: &mut &[u8]) {
+        self.pipeline.push_link(input);
+        self.poll();
+    }
+
+    /// Takes every output the core has queued.
+    pub fn poll(&mut self) {
+        while let Some(o) = self.pipeline.poll() {
+            self.take(o);
+        }
+    }
+
+    /// Sends `cmd` (tag `tag`) to the core as the ground would, then takes its outputs and any dump it starts.
+    pub fn command(&mut self, tag: u16, cmd: Command) {
+        let mut buf = [0u8; 64];
+        if let Ok(msg) = encode(&CommandEnvelope { tag, cmd }, &mut buf) {
+            self.pipeline.handle_command(msg);
+        }
+        self.poll();
+        while let Some(t) = self.pipeline.poll_dump() {
+            self.telemetry(t);
+        }
+    }
+
+    /// What was sent, with the link counters.
+    pub fn finish(mut self) -> ReplayOutput {
+        self.out.counters = *self.pipeline.link_counters();
+        self.out
+    }
+
+    /// Takes one output of the core.
+    pub fn take(&mut self, o: Output) {
         match o {
             Output::Telemetry(t) => self.telemetry(t),
             Output::Fpga(c) => self.out.fpga.push(c),
-            // Replay sends no commands, so no upload is ever committed.
+            // The host sends no uploads, so none is ever committed.
             Output::PersistCalibration { .. } => {}
         }
     }
@@ -118,22 +186,19 @@ impl Sink {
     fn telemetry(&mut self, t: Telemetry) {
         if let Ok(p) = encode(&t, &mut self.payload)
             && let Ok(n) = self.node.encode_telemetry(p, &mut self.wire)
+            && let Some(bytes) = self.wire.get(..n)
         {
-            self.out.telemetry.extend_from_slice(&self.wire[..n]);
+            self.out.telemetry.extend_from_slice(bytes);
         }
-        self.out.messages.push(t);
+        if self.keep_messages {
+            self.out.messages.push(t);
+        }
     }
 }
 
 /// Replays a frame log (bytes as recorded). `progress` is called with the number of bytes consumed so far.
 pub fn replay(bytes: &[u8], opts: &ReplayOptions, mut progress: impl FnMut(usize)) -> ReplayOutput {
-    let mut p = host_pipeline(opts.config, opts.cal);
-    let mut sink = Sink {
-        node: BusNode::new(opts.bus),
-        out: ReplayOutput::default(),
-        payload: vec![0; MAX_MESSAGE_LEN],
-        wire: vec![0; MAX_WIRE_FRAME],
-    };
+    let mut core = HostCore::new(opts.config, opts.cal, opts.bus, true);
     let mut check = CheckReport::default();
     if opts.check {
         // Frame by frame, so that each frame's fused sample can be compared.
@@ -142,9 +207,9 @@ pub fn replay(bytes: &[u8], opts: &ReplayOptions, mut progress: impl FnMut(usize
         for (i, d) in log.frames.iter().enumerate() {
             let frame = d.frame.to_bytes();
             let mut input = &frame[..];
-            p.push_link(&mut input);
-            let reference = reference_fused(&p, &d.frame.raw, &opts.cal);
-            let fused = *p.last_fused();
+            core.pipeline.push_link(&mut input);
+            let reference = reference_fused(&core.pipeline, &d.frame.raw, &opts.cal);
+            let fused = *core.pipeline.last_fused();
             for (a, r) in reference.iter().enumerate() {
                 if fused.used[a] > 0 {
                     let e = (f64::from(fused.axes[a]) - r).abs();
@@ -160,7 +225,7 @@ pub fn replay(bytes: &[u8], opts: &ReplayOptions, mut progress: impl FnMut(usize
                     f64::NAN
                 }
             }));
-            while let Some(o) = p.poll() {
+            while let Some(o) = core.pipeline.poll() {
                 if let Output::Telemetry(Telemetry::Fused(r)) = &o {
                     let values = r.axes();
                     for a in 0..AXES {
@@ -175,21 +240,17 @@ pub fn replay(bytes: &[u8], opts: &ReplayOptions, mut progress: impl FnMut(usize
                     check.reports += 1;
                     block.clear();
                 }
-                sink.take(o);
+                core.take(o);
             }
             if i % 4096 == 0 {
                 progress(i * shared::wire::frame::FRAME_LEN);
             }
         }
-        sink.out.check = Some(check);
     } else {
         let mut input = bytes;
         let mut last_report = 0;
         while !input.is_empty() {
-            p.push_link(&mut input);
-            while let Some(o) = p.poll() {
-                sink.take(o);
-            }
+            core.push_some(&mut input);
             let done = bytes.len() - input.len();
             if done - last_report >= 1 << 20 {
                 progress(done);
@@ -198,31 +259,21 @@ pub fn replay(bytes: &[u8], opts: &ReplayOptions, mut progress: impl FnMut(usize
         }
     }
     if opts.final_dump {
-        let mut buf = [0u8; 64];
-        for (tag, cmd) in [
-            (
-                1,
-                Command::AllanRequest {
-                    first: 0,
-                    count: ALLAN_CHANNELS as u8,
-                },
-            ),
-            (2, Command::HealthRequest { detail: true }),
-        ] {
-            if let Ok(msg) = encode(&CommandEnvelope { tag, cmd }, &mut buf) {
-                p.handle_command(msg);
-            }
-            while let Some(o) = p.poll() {
-                sink.take(o);
-            }
-            while let Some(t) = p.poll_dump() {
-                sink.telemetry(t);
-            }
-        }
+        core.command(
+            1,
+            Command::AllanRequest {
+                first: 0,
+                count: ALLAN_CHANNELS as u8,
+            },
+        );
+        core.command(2, Command::HealthRequest { detail: true });
     }
     progress(bytes.len());
-    sink.out.counters = *p.link_counters();
-    sink.out
+    let mut out = core.finish();
+    if opts.check {
+        out.check = Some(check);
+    }
+    out
 }
 
 /// The f64 model's fused value of the frame just processed by `p` (see module docs).

@@ -6,16 +6,9 @@ use host_test::allan::{
     noise_id, oadev,
 };
 
-fn lcg(n: usize, seed: u64) -> Vec<f64> {
-    let mut s = seed;
-    (0..n)
-        .map(|_| {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        })
-        .collect()
+fn uniform(n: usize, seed: u64) -> Vec<f64> {
+    let mut rng = host_test::testrng::TestRng::new(seed);
+    (0..n).map(|_| rng.uniform() - 0.5).collect()
 }
 
 #[test]
@@ -50,17 +43,17 @@ fn no_panics_on_small_or_odd_input() {
             .map(|i| if i % 2 == 0 { 1.7e308 } else { -1.7e308 })
             .collect();
         let mut series = vec![
-            lcg(n, 1),
+            uniform(n, 1),
             vec![0.0; n],
             vec![1e300; n],
             vec![1.7e308; n],
             alt,
         ];
         if n > 2 {
-            let mut with_nan = lcg(n, 2);
+            let mut with_nan = uniform(n, 2);
             with_nan[n / 2] = f64::NAN;
             series.push(with_nan);
-            let mut with_inf = lcg(n, 3);
+            let mut with_inf = uniform(n, 3);
             with_inf[0] = f64::INFINITY;
             series.push(with_inf);
         }
@@ -94,7 +87,7 @@ fn no_panics_on_small_or_odd_input() {
         }
     }
     // B1 with a phase that does not belong to y is refused, not a panic.
-    let y = lcg(100, 4);
+    let y = uniform(100, 4);
     let ph = Phase::from_frequency(&y[..50], 1.0).unwrap();
     assert!(b1_noise_id(DevKind::Adev, &y, &ph, 5).is_none());
 }
@@ -128,7 +121,9 @@ fn no_panics_in_edf_and_ci() {
 
 #[test]
 fn analyzer_reuse_gives_identical_results() {
-    let cols: Vec<Vec<f64>> = (0..4).map(|k| lcg(5000 + 37 * k, 10 + k as u64)).collect();
+    let cols: Vec<Vec<f64>> = (0..4)
+        .map(|k| uniform(5000 + 37 * k, 10 + k as u64))
+        .collect();
     let mut an = Analyzer::new();
     for kind in DevKind::ALL {
         for y in &cols {
@@ -152,7 +147,7 @@ fn analyzer_reuse_gives_identical_results() {
 fn octave_noise_id_from_the_block_pyramid_equals_the_direct_computation() {
     use host_test::allan::{AcfFlavor, Phase, noise_id};
     // White noise plus a random walk, so that several noise types occur along the octaves.
-    let w = lcg(1 << 15, 11);
+    let w = uniform(1 << 15, 11);
     let mut acc = 0.0;
     let y: Vec<f64> = w
         .iter()

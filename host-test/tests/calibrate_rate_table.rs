@@ -26,7 +26,7 @@ fn rate_table_fit_recovers_the_simulated_calibration() {
         cfg.cal = CalSpread::typical();
         cfg.rate_dps = rate;
         cfg.accel_g = accel;
-        cfg.frames = frame_opts(cfg.rate_hz, 9676.8);
+        cfg.frames = frame_opts(cfg.rate_hz, host_test::FPGA_BASE_RATE_HZ);
         let path = dir.join(format!("rec{k:02}.bin"));
         let sim: Simulator = write(cfg, &path, |_| ()).unwrap();
         truth.get_or_insert(*sim.true_cal());

@@ -204,15 +204,8 @@ fn replay_of_an_empty_or_random_file_is_an_error() {
     let empty = d.join("empty.bin");
     std::fs::write(&empty, b"").unwrap();
     let random = d.join("random.bin");
-    let mut x = 0x9E37_79B9_7F4A_7C15u64;
-    let bytes: Vec<u8> = (0..100_000)
-        .map(|_| {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 56) as u8
-        })
-        .collect();
+    let mut rng = host_test::testrng::TestRng::new(1);
+    let bytes: Vec<u8> = (0..100_000).map(|_| (rng.next_u64() >> 56) as u8).collect();
     std::fs::write(&random, &bytes).unwrap();
     for (f, n) in [(&empty, "0 bytes"), (&random, "100000 bytes")] {
         let out = d.join("out.kiss");

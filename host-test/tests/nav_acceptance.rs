@@ -41,7 +41,7 @@ fn frames_with(
 ) -> Vec<u8> {
     let mut cfg = SimConfig::new(1, FPS, (seconds * FPS).round() as u64, noise);
     cfg.motion = motion;
-    cfg.frames = simcli::frame_opts(FPS, 9676.8);
+    cfg.frames = simcli::frame_opts(FPS, host_test::FPGA_BASE_RATE_HZ);
     let path = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
     simcli::write(cfg, &path, |_| {}).unwrap();
     std::fs::read(&path).unwrap()
@@ -233,7 +233,7 @@ fn static_increments_and_a_log_with_gaps() {
         .flat_map(|(_, f)| f.iter().copied())
         .collect();
     let (nav, _) = run(&kept);
-    let period = 16.0 / 9676.8;
+    let period = 16.0 / host_test::FPGA_BASE_RATE_HZ;
     let g = 9.80665;
     let mut bridged = 0;
     for n in &nav {

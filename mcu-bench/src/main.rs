@@ -215,7 +215,7 @@ fn stages(bank: &mut AllanBank) {
             }),
             ticks_between(|| {
                 // As `Pipeline` does: SI units, one frame period, an interval taken every 32 frames.
-                let dt_s = 16.0 * 1000.0 / 9_676_800.0f32;
+                let dt_s = 16.0 * 1000.0 / shared::wire::clock::FPGA_BASE_RATE_MILLIHZ as f32;
                 for f in &fused {
                     let [gx, gy, gz, ax, ay, az] = f.map(|x| x as f32);
                     nav.add(

@@ -6,6 +6,19 @@
 //! (streaming Allan accumulators) → [`telemetry`] (postcard messages) — tied together by [`pipeline`].
 #![no_std]
 #![deny(missing_docs)]
+// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
+// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies, which is also checked without
+// `cfg(test)`.
+#![cfg_attr(
+    test,
+    allow(
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic,
+        clippy::indexing_slicing,
+        clippy::arithmetic_side_effects
+    )
+)]
 
 pub mod allan;
 #[cfg(any(test, feature = "bench"))]
@@ -19,15 +32,6 @@ pub mod pipeline;
 pub mod serde_array;
 pub mod storage;
 pub mod telemetry;
-// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
-// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies.
 #[cfg(test)]
-#[allow(
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic,
-    clippy::indexing_slicing,
-    clippy::arithmetic_side_effects
-)]
 mod testutil;
 pub mod wire;

@@ -174,13 +174,5 @@ impl NavIntegrator {
     }
 }
 
-// Test code may panic: a failed assertion is how a test reports.
 #[cfg(test)]
-#[allow(
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic,
-    clippy::indexing_slicing,
-    clippy::arithmetic_side_effects
-)]
 mod tests;

@@ -53,8 +53,8 @@ pub const MAX_FRAMES_PER_OUTPUT: u16 = 4096;
 /// Pipeline parameters.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PipelineConfig {
-    /// FPGA data-set rate before decimation, mHz (9 676 800 = 9676.8 Hz; N = 15 gives 604.8 frames/s).
-    pub fpga_base_rate_mhz: u64,
+    /// FPGA data-set rate before decimation, millihertz (9 676 800 = 9676.8 Hz; N = 15 gives 604.8 frames/s).
+    pub fpga_base_rate_millihz: u64,
     /// Frames averaged per output (32 at 604.8 frames/s = the seed's 18.9 Hz).
     pub frames_per_output: u16,
     /// Outputs between periodic health reports (0 = only on request).
@@ -75,7 +75,7 @@ pub struct PipelineConfig {
 impl PipelineConfig {
     /// Our board's defaults.
     pub const DEFAULT: Self = Self {
-        fpga_base_rate_mhz: 9_676_800,
+        fpga_base_rate_millihz: crate::wire::clock::FPGA_BASE_RATE_MILLIHZ,
         frames_per_output: 32,
         health_every: 19,
         link_bit_rate: 2_000_000,
@@ -88,8 +88,8 @@ impl PipelineConfig {
     /// the smallest such `n` is 11 (806.4 frames/s, 97 % of the 2 Mbaud line).
     pub fn link_carries(&self, n: u16) -> bool {
         // In u128 neither side can wrap: need < 2⁶⁴ · 2¹² and have ≤ 2¹⁶ · 2³² · 2¹⁰.
-        let need =
-            u128::from(self.fpga_base_rate_mhz).wrapping_mul((FRAME_LEN as u128).wrapping_mul(10));
+        let need = u128::from(self.fpga_base_rate_millihz)
+            .wrapping_mul((FRAME_LEN as u128).wrapping_mul(10));
         let have = (u128::from(n).wrapping_add(1))
             .wrapping_mul(u128::from(self.link_bit_rate))
             .wrapping_mul(1000);
@@ -425,7 +425,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         // n ≤ 2¹⁶, so n · 10¹⁵ < 2⁶⁷: cannot wrap; a rate of 0 counts as 1 mHz.
         let n = u128::from(self.clock.decimation()?).wrapping_add(1);
         let rate = NonZeroU128::from(
-            NonZeroU64::new(self.config.fpga_base_rate_mhz).unwrap_or(NonZeroU64::MIN),
+            NonZeroU64::new(self.config.fpga_base_rate_millihz).unwrap_or(NonZeroU64::MIN),
         );
         Some((n.wrapping_mul(1_000_000_000_000_000) / rate) as u64)
     }
@@ -596,7 +596,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         // The arrival gap in frames, rounded: gap · rate / ((N + 1) · 10⁹), both sides in units of 10⁻⁹ base ticks
         // (µs · mHz). In u128 nothing can wrap: the gap is < 2⁶⁴ µs and the rate < 2⁶⁴ mHz.
         let gap = u128::from(now.saturating_sub(last))
-            .wrapping_mul(u128::from(self.config.fpga_base_rate_mhz));
+            .wrapping_mul(u128::from(self.config.fpga_base_rate_millihz));
         let frame = u128::from(n).wrapping_add(1).wrapping_mul(1_000_000_000);
         let rounded = gap.wrapping_add(frame >> 1);
         let slack = u32::from(self.config.arrival_slack_frames);
@@ -629,7 +629,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         if tick.rate_changed {
             self.restart_statistics();
         }
-        let t_us = FrameClock::ticks_to_us(tick.base_ticks, self.config.fpga_base_rate_mhz);
+        let t_us = FrameClock::ticks_to_us(tick.base_ticks, self.config.fpga_base_rate_millihz);
 
         // Loops into initialised arrays, not `array::map`: on the M4 (opt-level "s") the map's staging copies cost
         // 3.0 k instructions per frame, the loop 0.8 k (`mcu-bench`).
@@ -695,7 +695,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         const RAD_PER_UDEG: f32 = core::f32::consts::PI / 180.0e6;
         const MPS2_PER_UG: f32 = 9.806_65e-6;
         let dt_s = f32::from(decimation) + 1.0;
-        let dt_s = dt_s * 1000.0 / self.config.fpga_base_rate_mhz.max(1) as f32;
+        let dt_s = dt_s * 1000.0 / self.config.fpga_base_rate_millihz.max(1) as f32;
         if self.nav_start_ticks.is_none() {
             self.nav_start_ticks = Some(base_ticks);
         } else {
@@ -720,7 +720,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     fn push_nav(&mut self, seq: u32, end: u64) {
         let inc = self.nav.take();
         let start = self.nav_start_ticks.replace(end).unwrap_or(end);
-        let rate = self.config.fpga_base_rate_mhz;
+        let rate = self.config.fpga_base_rate_millihz;
         let t_us = FrameClock::ticks_to_us(start, rate);
         let dt_us = FrameClock::ticks_to_us(end, rate).saturating_sub(t_us);
         // f32 → i64 casts saturate: a value beyond ±9.2e18 nrad cannot occur in one interval.
@@ -870,15 +870,6 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     }
 }
 
-// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
-// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies. (The golden stream test is in
-// `tests/golden.rs`.)
+// The golden stream test is in `tests/golden.rs`.
 #[cfg(test)]
-#[allow(
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic,
-    clippy::indexing_slicing,
-    clippy::arithmetic_side_effects
-)]
 mod tests;

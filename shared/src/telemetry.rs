@@ -430,16 +430,7 @@ pub fn peek_tag(bytes: &[u8]) -> u16 {
         .map_or(0, |(tag, _)| tag)
 }
 
-// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
-// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies.
 #[cfg(test)]
-#[allow(
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic,
-    clippy::indexing_slicing,
-    clippy::arithmetic_side_effects
-)]
 mod tests {
     use super::*;
     use crate::fuse::SensorFaults;

@@ -128,7 +128,7 @@ fn run(args: &Args) -> Result<(), String> {
         Duration::MAX,
         select3(
             node::tasks(&app, board, &mut store),
-            feed(board, &frames, args.fast, config.fpga_base_rate_mhz),
+            feed(board, &frames, args.fast, config.fpga_base_rate_millihz),
             STOP.wait(),
         ),
     );
@@ -156,7 +156,7 @@ fn run(args: &Args) -> Result<(), String> {
 
 /// The FPGA: the log's bytes into the link's DMA ring, one frame per frame period (from the first frame's
 /// decimation), or as fast as the link task reads them. Then silence.
-async fn feed(board: &Board, frames: &[u8], fast: bool, base_rate_mhz: u64) {
+async fn feed(board: &Board, frames: &[u8], fast: bool, base_rate_millihz: u64) {
     if fast {
         use embedded_io_async::Write as _;
         let _ = board.fpga_rx.writer(None).write_all(frames).await;
@@ -166,7 +166,7 @@ async fn feed(board: &Board, frames: &[u8], fast: bool, base_rate_mhz: u64) {
             .decode(&mut probe)
             .map_or(15, |d| d.frame.decimation);
         // Frame period: N + 1 base ticks.
-        let period_us = FrameClock::ticks_to_us(u64::from(n) + 1, base_rate_mhz);
+        let period_us = FrameClock::ticks_to_us(u64::from(n) + 1, base_rate_millihz);
         node::fpga_play(board, frames, Duration::from_micros(period_us)).await;
     }
     log::info!("sitl: frame log ended; the FPGA link is silent now");

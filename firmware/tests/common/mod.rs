@@ -252,6 +252,6 @@ pub fn frames(n: usize) -> Vec<u8> {
 pub fn frame_period() -> Duration {
     Duration::from_micros(shared::wire::FrameClock::ticks_to_us(
         16,
-        PipelineConfig::DEFAULT.fpga_base_rate_mhz,
+        PipelineConfig::DEFAULT.fpga_base_rate_millihz,
     ))
 }

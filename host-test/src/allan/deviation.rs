@@ -351,15 +351,12 @@ mod tests {
         }
     }
 
-    fn lcg_series(n: usize) -> Vec<f64> {
-        let mut state: u64 = 12345;
+    fn random_series(n: usize) -> Vec<f64> {
+        let mut rng = crate::testrng::TestRng::new(12345);
         let mut walk = 0.0;
         (0..n)
             .map(|_| {
-                state = state
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                let u = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+                let u = rng.uniform() - 0.5;
                 walk += 0.01 * u;
                 u + walk + 3.0
             })
@@ -368,7 +365,7 @@ mod tests {
 
     #[test]
     fn kernels_match_textbook_formulas() {
-        let y = lcg_series(301);
+        let y = random_series(301);
         for kind in DevKind::ALL {
             for m in 1..=kind.max_m(y.len()) {
                 let p = deviation(kind, &y, 1.0, &[m]);

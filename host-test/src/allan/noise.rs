@@ -406,26 +406,8 @@ pub(crate) fn noise_id_pyramid(
 mod tests {
     use super::*;
 
-    struct Lcg(u64);
-    impl Lcg {
-        fn gauss(&mut self) -> f64 {
-            // sum of 12 uniforms − 6: good enough for noise-type tests
-            (0..12)
-                .map(|_| {
-                    self.0 = self
-                        .0
-                        .wrapping_mul(6364136223846793005)
-                        .wrapping_add(1442695040888963407);
-                    (self.0 >> 11) as f64 / (1u64 << 53) as f64
-                })
-                .sum::<f64>()
-                - 6.0
-        }
-    }
-
     fn synth(alpha: i32, n: usize) -> Vec<f64> {
-        let mut g = Lcg(7);
-        let w: Vec<f64> = (0..n + 1).map(|_| g.gauss()).collect();
+        let w = crate::testrng::TestRng::new(7).normals(n + 1, 1.0);
         match alpha {
             2 => w.windows(2).map(|p| p[1] - p[0]).collect(), // white PM: y = diff(white x)
             0 => w[..n].to_vec(),                             // white FM

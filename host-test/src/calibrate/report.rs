@@ -10,6 +10,7 @@ use nalgebra::Vector3;
 
 use super::linalg::{angle, vec3};
 use super::{ImuCal, StaticInterval};
+use crate::stats::rms;
 
 /// Residuals of one IMU.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -31,11 +32,6 @@ pub struct ResidualReport {
     pub poses: usize,
     /// Per IMU.
     pub imus: Vec<ImuResidual>,
-}
-
-fn rms(v: impl Iterator<Item = f64>) -> f64 {
-    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
-    if n == 0 { 0.0 } else { (s / n as f64).sqrt() }
 }
 
 /// `|a| − 1 g` per IMU (outer) per pose (inner), mg. With `t_ref_s`, the bias drift is applied at each pose's

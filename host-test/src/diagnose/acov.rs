@@ -137,16 +137,7 @@ mod tests {
     use super::*;
 
     fn noise(seed: u64, n: usize) -> Vec<f64> {
-        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-        let mut u = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64 + 1e-18
-        };
-        (0..n)
-            .map(|_| (-2.0 * u().ln()).sqrt() * (2.0 * std::f64::consts::PI * u()).cos())
-            .collect()
+        crate::testrng::TestRng::new(seed).normals(n, 1.0)
     }
 
     #[test]

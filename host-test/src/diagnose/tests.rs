@@ -2,16 +2,8 @@ use super::*;
 use crate::formats::csv::Column;
 
 fn gauss(seed: u64) -> impl FnMut() -> f64 {
-    let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-    move || {
-        let mut u = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64 + 1e-18
-        };
-        (-2.0 * u().ln()).sqrt() * (2.0 * std::f64::consts::PI * u()).cos()
-    }
+    let mut rng = crate::testrng::TestRng::new(seed);
+    move || rng.normal()
 }
 
 /// 16 groups of white noise; gyro axes get `rho` of common-mode noise.

@@ -36,8 +36,12 @@ impl FrameLog {
     }
 
     /// The physical recording: every frame through `cal` (the core's fixed-point calibration), times from the
-    /// sequence counter and decimation at `base_rate_mhz` (see `FrameClock`). Columns in °/s and g.
-    pub fn to_recording(&self, cal: &CalibrationTable<GROUPS>, base_rate_mhz: u64) -> Recording {
+    /// sequence counter and decimation at `base_rate_millihz` (millihertz; see `FrameClock`). Columns in °/s and g.
+    pub fn to_recording(
+        &self,
+        cal: &CalibrationTable<GROUPS>,
+        base_rate_millihz: u64,
+    ) -> Recording {
         let n = self.frames.len();
         let mut clock = FrameClock::new();
         let mut rec = Recording {
@@ -61,7 +65,7 @@ impl FrameLog {
         for d in &self.frames {
             let tick = clock.advance(d);
             rec.t_s
-                .push(tick.base_ticks as f64 * 1000.0 / base_rate_mhz.max(1) as f64);
+                .push(tick.base_ticks as f64 * 1000.0 / base_rate_millihz.max(1) as f64);
             temps.push(d.frame.temp_cdeg.map_or(f64::NAN, |t| f64::from(t) / 100.0));
             for ((codes, group_cal), out) in
                 d.frame.raw.iter().zip(&cal.groups).zip(data.iter_mut())

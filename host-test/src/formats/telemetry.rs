@@ -4,7 +4,7 @@
 use shared::bus::csp::CspPacket;
 use shared::bus::kiss::KissDecoder;
 use shared::bus::{BusConfig, MAX_FRAME};
-use shared::telemetry::{FusedReport, Telemetry, decode};
+use shared::telemetry::{AllanReport, FusedReport, Telemetry, decode};
 
 /// Counts of what could not be decoded.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -19,6 +19,61 @@ pub struct StreamStats {
     pub other_port: u64,
     /// Payloads that are not telemetry messages (version or contents).
     pub bad_messages: u64,
+}
+
+/// One level of a core Allan report in the ground's terms: the root is taken here, from the exact integer sums.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AllanPoint {
+    /// The core's channel number ([`shared::pipeline`]: sensor channels, then the fused axes).
+    pub channel: usize,
+    /// The channel as a column of the interchange CSV: `g03z` for group 3's gyro z, `mean_gz` for a fused axis.
+    pub column: String,
+    /// Octave level k: averaging factor 2^k.
+    pub level: usize,
+    /// Sample interval τ₀ of the accumulator, s.
+    pub tau0_s: f64,
+    /// Averaging time τ = 2^k τ₀, s.
+    pub tau_s: f64,
+    /// Differences in the level's sums.
+    pub count: u32,
+    /// Samples the accumulator had taken.
+    pub samples: u64,
+    /// Allan deviation √(sum_sq / (2·count·m²)), °/s or g (the core sums µ°/s and µg).
+    pub dev: f64,
+}
+
+impl AllanPoint {
+    /// The point a report gives; `None` while its level holds no difference (or its level is out of range).
+    pub fn from_report(a: &AllanReport) -> Option<Self> {
+        use crate::formats::csv::{SensorKind, column_name};
+        use shared::pipeline::{FUSED_CHANNEL0, SENSOR_CHANNELS};
+        let avar = a.level.avar()?;
+        let channel = usize::from(a.channel);
+        let axis = channel % 6;
+        let kind = if axis < 3 {
+            SensorKind::Gyro
+        } else {
+            SensorKind::Accel
+        };
+        let column = if channel < SENSOR_CHANNELS {
+            column_name(kind, channel / 6, axis % 3)
+        } else {
+            crate::adev::mean_label(kind, (channel - FUSED_CHANNEL0) % 3)
+        };
+        let tau0_s = a.tau0_ps as f64 * 1e-12;
+        let factor = 1u64.checked_shl(u32::from(a.level.level))?;
+        Some(Self {
+            channel,
+            column,
+            level: usize::from(a.level.level),
+            tau0_s,
+            tau_s: tau0_s * factor as f64,
+            count: a.level.count,
+            samples: a.samples,
+            // µ°/s → °/s, µg → g
+            dev: avar.sqrt() / 1e6,
+        })
+    }
 }
 
 /// A decoded telemetry stream.
@@ -149,43 +204,36 @@ impl TelemetryLog {
         Ok(n)
     }
 
+    /// The Allan points of the log's reports, in order (reports whose level holds no difference left out).
+    pub fn allan(&self) -> impl Iterator<Item = AllanPoint> + '_ {
+        self.messages.iter().filter_map(|m| match m {
+            Telemetry::Allan(a) => AllanPoint::from_report(a),
+            _ => None,
+        })
+    }
+
     /// Writes the Allan deviations the core's reports give, one row per channel and level:
     /// `channel,column,tau_s,count,samples,dev`. `column` names the channel as in the interchange CSV (`g03z` for
     /// group 3's gyro z, `mean_gz` for the fused axis), `dev` is √(sum_sq / (2·count·m²)) in °/s or g — the root
     /// taken here, on the ground, from the exact integer sums. The last report of each (channel, level) counts.
     pub fn write_allan_csv(&self, out: &mut impl std::io::Write) -> std::io::Result<usize> {
-        use shared::pipeline::{FUSED_CHANNEL0, SENSOR_CHANNELS};
-        let mut last: std::collections::BTreeMap<(u8, u8), shared::telemetry::AllanReport> =
-            Default::default();
+        let mut last: std::collections::BTreeMap<(u8, u8), AllanReport> = Default::default();
         for m in &self.messages {
             if let Telemetry::Allan(a) = m {
                 last.insert((a.channel, a.level.level), *a);
             }
         }
         writeln!(out, "channel,column,tau_s,count,samples,dev")?;
-        for ((ch, _), a) in &last {
-            let ch = usize::from(*ch);
-            let axis = ch % 6;
-            let kind = if axis < 3 {
-                super::csv::SensorKind::Gyro
-            } else {
-                super::csv::SensorKind::Accel
-            };
-            let name = if ch < SENSOR_CHANNELS {
-                super::csv::column_name(kind, ch / 6, axis % 3)
-            } else {
-                crate::adev::mean_label(kind, (ch - FUSED_CHANNEL0) % 3)
-            };
-            let Some(avar) = a.level.avar() else { continue };
-            let tau = a.tau0_ps as f64 * 1e-12 * (1u64 << a.level.level) as f64;
-            // µ°/s → °/s, µg → g
+        for p in last.values().filter_map(AllanPoint::from_report) {
             writeln!(
                 out,
-                "{ch},{name},{},{},{},{:e}",
-                crate::adev::round_sig(tau, 10),
-                a.level.count,
-                a.samples,
-                avar.sqrt() / 1e6
+                "{},{},{},{},{},{:e}",
+                p.channel,
+                p.column,
+                crate::adev::round_sig(p.tau_s, 10),
+                p.count,
+                p.samples,
+                p.dev
             )?;
         }
         Ok(last.len())

@@ -54,6 +54,14 @@ use rand_xoshiro::rand_core::Rng;
 use std::f64::consts::{LN_2, LN_10, PI};
 use std::sync::OnceLock;
 
+mod flicker;
+mod gauss;
+use flicker::*;
+pub use flicker::{FlickerBand, FlickerMethod};
+pub use gauss::normal;
+pub(crate) use gauss::round_to_step;
+use gauss::*;
+
 /// `2 ln2 / π`: the IEEE 952 flicker floor AVAR per B² (ADEV floor `0.6643·B`).
 pub const FLICKER_AVAR_PER_B2: f64 = 2.0 * LN_2 / PI;
 
@@ -124,159 +132,6 @@ impl NoiseParams {
             ..*self
         }
     }
-}
-
-/// How flicker noise is synthesised from first-order Gauss–Markov (AR(1)) sections.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum FlickerMethod {
-    /// A cascade of first-order pole–zero sections (poles at `1/T_i`, a zero at `√r/T_i` for every pole but the
-    /// fastest, `r = 10^{1/per_decade}`), matched-z discretised and driven by one white noise: by partial
-    /// fractions, a sum of AR(1) processes sharing one innovation with positive weights `c_i`. One normal draw
-    /// per sample. The default.
-    #[default]
-    PoleZero,
-    /// A sum of independent AR(1) processes of equal variance `B² ln10/(π·per_decade)`: one normal draw per
-    /// component and sample.
-    IndependentGm,
-}
-
-/// Correlation times of the Gauss–Markov sections that synthesise flicker noise, and the method.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FlickerBand {
-    /// Shortest correlation time, s (≥ Δt/20).
-    pub tau_min_s: f64,
-    /// Longest correlation time is the first of the log-spaced grid at or above this, s.
-    pub tau_max_s: f64,
-    /// Sections per decade of correlation time.
-    pub per_decade: f64,
-    /// Synthesis method.
-    pub method: FlickerMethod,
-}
-
-impl FlickerBand {
-    /// The default band for a run of `duration_s` at interval `dt_s`: `Δt/√2 … 10·duration`, 2 per decade,
-    /// pole–zero.
-    pub fn for_run(dt_s: f64, duration_s: f64) -> Self {
-        Self {
-            tau_min_s: dt_s / 2f64.sqrt(),
-            tau_max_s: (10.0 * duration_s).max(10.0 * dt_s),
-            per_decade: 2.0,
-            method: FlickerMethod::PoleZero,
-        }
-    }
-
-    /// Checks the band (positive, ordered, at most 400 sections).
-    pub fn validate(&self) -> Result<(), SimError> {
-        check(self.tau_min_s.is_finite() && self.tau_min_s > 0.0, || {
-            format!("flicker tau_min_s = {} must be > 0", self.tau_min_s)
-        })?;
-        check(
-            self.tau_max_s.is_finite() && self.tau_max_s >= self.tau_min_s,
-            || format!("flicker tau_max_s = {} must be ≥ tau_min_s", self.tau_max_s),
-        )?;
-        check(
-            self.per_decade.is_finite() && self.per_decade >= 0.5 && self.per_decade <= 20.0,
-            || {
-                format!(
-                    "flicker per_decade = {} must be in [0.5, 20]",
-                    self.per_decade
-                )
-            },
-        )?;
-        check(self.count() <= 400, || {
-            "flicker band needs more than 400 sections".into()
-        })
-    }
-
-    /// Number of sections (saturates at 10⁶ for an invalid band).
-    pub fn count(&self) -> usize {
-        let decades = (self.tau_max_s / self.tau_min_s).log10();
-        let n = (self.per_decade * decades - 1e-9).ceil();
-        if n.is_nan() {
-            1
-        } else {
-            n.clamp(0.0, 1e6) as usize + 1
-        }
-    }
-
-    /// Correlation times `T_i`, s.
-    pub fn correlation_times(&self) -> Vec<f64> {
-        (0..self.count())
-            .map(|i| self.tau_min_s * 10f64.powf(i as f64 / self.per_decade))
-            .collect()
-    }
-
-    /// The synthesis of bias instability `b` at interval `dt`: AR(1) sections and their AVAR weights.
-    fn synthesis(&self, dt: f64, b: f64) -> FlickerSynth {
-        let la: Vec<f64> = self.correlation_times().iter().map(|t| dt / t).collect();
-        match self.method {
-            FlickerMethod::IndependentGm => {
-                let var = b * b * LN_10 / (PI * self.per_decade);
-                FlickerSynth {
-                    alpha: vec![var; la.len()],
-                    la,
-                    weights: None,
-                }
-            }
-            FlickerMethod::PoleZero => {
-                // Zeros (rate ×dt) above every pole but the fastest.
-                let r_half = 10f64.powf(0.5 / self.per_decade);
-                let lz: Vec<f64> = la[1..].iter().map(|l| l * r_half).collect();
-                // Residues c_i = Π_k (1 − b_k/a_i) / Π_{k≠i} (1 − a_k/a_i), in logs (a = e^{−la}, b = e^{−lz}).
-                let c: Vec<f64> = (0..la.len())
-                    .map(|i| {
-                        let (mut log, mut sign) = (0.0, 1.0);
-                        let mut acc = |x: f64, num: bool| {
-                            let f = -(-x).exp_m1();
-                            sign *= f.signum();
-                            log += if num { f.abs().ln() } else { -f.abs().ln() };
-                        };
-                        for &z in &lz {
-                            acc(z - la[i], true);
-                        }
-                        for (k, &p) in la.iter().enumerate() {
-                            if k != i {
-                                acc(p - la[i], false);
-                            }
-                        }
-                        sign * log.exp()
-                    })
-                    .collect();
-                // Autocovariance Σ_i α_i a_i^|k| with α_i = c_i Σ_j c_j / (1 − a_i a_j).
-                let alpha: Vec<f64> = (0..la.len())
-                    .map(|i| {
-                        c[i] * c
-                            .iter()
-                            .zip(&la)
-                            .map(|(cj, lj)| cj / -(-(la[i] + lj)).exp_m1())
-                            .sum::<f64>()
-                    })
-                    .collect();
-                // Gain: the exact AVAR equals the ideal floor at the band's centre.
-                let tau_ref = (self.tau_min_s * self.tau_max_s).sqrt().max(dt);
-                let unit: f64 = alpha
-                    .iter()
-                    .zip(&la)
-                    .map(|(&a, &l)| ar1_avar(a, l, tau_ref / dt))
-                    .sum();
-                let g2 = FLICKER_AVAR_PER_B2 * b * b / unit;
-                FlickerSynth {
-                    alpha: alpha.iter().map(|a| a * g2).collect(),
-                    weights: Some(c.iter().map(|c| c * g2.sqrt()).collect()),
-                    la,
-                }
-            }
-        }
-    }
-}
-
-/// AR(1) sections of a flicker synthesis: `la_i = Δt/T_i`, AVAR weights `α_i` (the output's autocovariance is
-/// `Σ α_i e^{−la_i|k|}`), and for the pole–zero method the weights of the shared-innovation sections.
-#[derive(Clone, Debug, PartialEq)]
-struct FlickerSynth {
-    la: Vec<f64>,
-    alpha: Vec<f64>,
-    weights: Option<Vec<f64>>,
 }
 
 /// How a model is turned into samples: the sample interval and the flicker synthesis band.
@@ -805,79 +660,5 @@ impl SensorNoise {
         let mut v = vec![0.0; n];
         g.fill_rounded(&mut v);
         Ok(v)
-    }
-}
-
-/// Rounds each value to the nearest multiple of `step`, halves away from zero (no-op for `step == 0`; values
-/// beyond ±2⁶² steps saturate).
-pub(crate) fn round_to_step(v: &mut [f64], step: f64) {
-    if step > 0.0 {
-        let inv = 1.0 / step;
-        for x in v {
-            let r = *x * inv;
-            // `as i64` truncates toward zero and saturates: a cheap round() without a libm call.
-            *x = (r + 0.5f64.copysign(r)) as i64 as f64 * step;
-        }
-    }
-}
-
-/// Ziggurat tables (Marsaglia & Tsang 2000, 256 layers): layer edges `x` and `f(x) = e^{−x²/2}`.
-struct Ziggurat {
-    x: [f64; 257],
-    f: [f64; 257],
-}
-
-const ZIG_R: f64 = 3.654_152_885_361_009;
-const ZIG_V: f64 = 4.928_673_233_99e-3;
-
-fn ziggurat() -> &'static Ziggurat {
-    static Z: OnceLock<Ziggurat> = OnceLock::new();
-    Z.get_or_init(|| {
-        let f = |x: f64| (-0.5 * x * x).exp();
-        let mut x = [0.0; 257];
-        x[0] = ZIG_V / f(ZIG_R);
-        x[1] = ZIG_R;
-        for i in 1..255 {
-            x[i + 1] = (-2.0 * (ZIG_V / x[i] + f(x[i])).ln()).sqrt();
-        }
-        x[256] = 0.0;
-        Ziggurat { x, f: x.map(f) }
-    })
-}
-
-/// A uniform variate in [−1, 1) from the 52 high bits of one draw.
-#[inline]
-fn signed_unit<R: Rng + ?Sized>(rng: &mut R) -> f64 {
-    f64::from_bits(0x4000_0000_0000_0000 | (rng.next_u64() >> 12)) - 3.0
-}
-
-/// A standard normal variate: 256-layer ziggurat on one 64-bit draw (low 8 bits: layer; high 52 bits: a
-/// signed uniform in [−1, 1) built directly in the mantissa); ≈ 1 % of draws take the exact wedge or tail branch.
-#[inline]
-pub fn normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
-    let z = ziggurat();
-    loop {
-        let bits = rng.next_u64();
-        let i = (bits & 0xFF) as usize;
-        let u = f64::from_bits(0x4000_0000_0000_0000 | (bits >> 12)) - 3.0;
-        let x = u * z.x[i];
-        if x.abs() < z.x[i + 1] {
-            return x;
-        }
-        if i == 0 {
-            // Tail beyond R (Marsaglia 1964).
-            loop {
-                let u1 = 1.0 - (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-                let u2 = 1.0 - (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-                let t = -u1.ln() / ZIG_R;
-                if -2.0 * u2.ln() > t * t {
-                    return if u < 0.0 { -(ZIG_R + t) } else { ZIG_R + t };
-                }
-            }
-        }
-        let v = (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-        if z.f[i + 1] + v * (z.f[i] - z.f[i + 1]) < (-0.5 * x * x).exp() {
-            return x;
-        }
     }
 }

@@ -9,6 +9,7 @@ use super::preset::{
     seed_sensor_params,
 };
 use super::*;
+use crate::stats::std_dev;
 use shared::calib::RawCounts;
 
 /// Non-overlapping octave Allan variance (paper eq. 14–15): `(m, AVAR, K)` for m = 1, 2, 4, … while K ≥ 2.
@@ -24,12 +25,6 @@ fn octave_avar(x: &[f64]) -> Vec<(usize, f64, usize)> {
         m *= 2;
     }
     out
-}
-
-fn std_dev(x: &[f64]) -> f64 {
-    let n = x.len() as f64;
-    let mean = x.iter().sum::<f64>() / n;
-    (x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
 }
 
 /// Compares the octave AVAR of `x` with the model's expectation at every octave with K ≥ `min_k`: the ratio is

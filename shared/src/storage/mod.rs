@@ -295,14 +295,5 @@ impl<F: NorFlash> CalStore<F> {
 
 #[cfg(any(test, feature = "mock-flash"))]
 pub mod mock;
-// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
-// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies.
 #[cfg(test)]
-#[allow(
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic,
-    clippy::indexing_slicing,
-    clippy::arithmetic_side_effects
-)]
 mod tests;

@@ -9,6 +9,10 @@
 use super::Decoded;
 use core::num::{NonZeroU64, NonZeroU128};
 
+/// The FPGA's data-set rate before decimation, in millihertz: 9676.8 Hz. A frame of decimation N comes every N + 1
+/// base periods (N = 15: 604.8 frames/s). The one definition of this rate; everything else derives from it.
+pub const FPGA_BASE_RATE_MILLIHZ: u64 = 9_676_800;
+
 /// Frame time keeping (see module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FrameClock {
@@ -68,14 +72,15 @@ impl FrameClock {
         tick
     }
 
-    /// `ticks` base periods in µs, for a base rate in mHz (rounded down; modulo 2⁶⁴ where the time exceeds it).
+    /// `ticks` base periods in µs, for a base rate in millihertz (rounded down; modulo 2⁶⁴ where the time exceeds
+    /// it).
     ///
     /// With ticks = q · rate + m (0 ≤ m < rate): ⌊ticks · 10⁹ / rate⌋ = q · 10⁹ + ⌊m · 10⁹ / rate⌋, two 64-bit
-    /// divisions where m · 10⁹ fits 64 bits (rate < 2³⁴ mHz: every FPGA rate), instead of a 128-bit one (≈ 1.1 k
+    /// divisions where m · 10⁹ fits 64 bits (rate < 2³⁴ millihertz: every FPGA rate), instead of a 128-bit one (≈ 1.1 k
     /// Cortex-M4 instructions per frame in `mcu-bench`, where the pipeline stamps every frame).
-    pub fn ticks_to_us(ticks: u64, base_rate_mhz: u64) -> u64 {
-        // A rate of 0 counts as 1 mHz.
-        let rate = NonZeroU64::new(base_rate_mhz).unwrap_or(NonZeroU64::MIN);
+    pub fn ticks_to_us(ticks: u64, base_rate_millihz: u64) -> u64 {
+        // A rate of 0 counts as 1 millihertz.
+        let rate = NonZeroU64::new(base_rate_millihz).unwrap_or(NonZeroU64::MIN);
         if rate.get() < 1 << 34 {
             let (q, m) = (ticks / rate, ticks % rate);
             // m < 2³⁴: m · 10⁹ < 2⁶⁴ cannot wrap; q · 10⁹ and the sum wrap modulo 2⁶⁴, as the 128-bit form's cast.
@@ -88,9 +93,7 @@ impl FrameClock {
     }
 }
 
-// Test code may panic: a failed assertion is how a test reports.
 #[cfg(test)]
-#[allow(clippy::arithmetic_side_effects)]
 mod tests {
     use super::*;
 

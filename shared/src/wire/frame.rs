@@ -233,16 +233,7 @@ impl FrameRepr {
     }
 }
 
-// Test code may panic: a failed assertion or `unwrap` is how a test reports, and it indexes fixtures of known
-// size. The no-panic lints (`[lints]` in Cargo.toml) are for the code that flies.
 #[cfg(test)]
-#[allow(
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic,
-    clippy::indexing_slicing,
-    clippy::arithmetic_side_effects
-)]
 mod tests {
     use super::*;
 

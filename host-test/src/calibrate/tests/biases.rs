@@ -62,7 +62,7 @@ fn spread_poses_recover_shifted_biases() {
     let shift: Vec<Vector3<f64>> = (0..4)
         .map(|_| Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 10.0)
         .collect();
-    let dirs: Vec<[f64; 3]> = (0..8).map(|_| rng.unit()).collect();
+    let dirs: Vec<[f64; 3]> = (0..8).map(|_| rng.unit_vector()).collect();
     let p = poses(&f, &dirs, &shift, [5.0, -6.0, 7.0]);
     let (g, up) = reestimate_biases(&f, &p, &BiasOptions::default()).unwrap();
     for (i, s) in shift.iter().enumerate() {

@@ -10,45 +10,8 @@ mod synthetic;
 
 use super::{StaticInterval, Vec3};
 
-/// Deterministic generator (SplitMix64) with uniform and normal draws.
-pub(super) struct Rng(u64);
-
-impl Rng {
-    pub(super) fn new(seed: u64) -> Self {
-        Self(seed)
-    }
-
-    pub(super) fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    pub(super) fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Standard normal (Box–Muller).
-    pub(super) fn normal(&mut self) -> f64 {
-        let u1 = self.uniform().max(1e-300);
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-    }
-
-    /// Uniform unit vector.
-    pub(super) fn unit(&mut self) -> Vec3 {
-        loop {
-            let v = [self.normal(), self.normal(), self.normal()];
-            let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            if n > 1e-6 {
-                return v.map(|x| x / n);
-            }
-        }
-    }
-}
+pub(super) use crate::stats::rms;
+pub(super) use crate::testrng::TestRng as Rng;
 
 /// A near-identity accelerometer (2048 counts/g, 1 % scale and misalignment spread) and its biases (40 counts
 /// rms), drawn in that order.
@@ -86,12 +49,4 @@ pub(super) fn interval(
         gyro_std_dps: 0.25,
         accel_change_mg: 0.0,
     }
-}
-
-/// RMS of a slice (0 for an empty one).
-pub(super) fn rms(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
 }

@@ -3,9 +3,9 @@
 
 use std::sync::OnceLock;
 
-use super::rms;
 use crate::calibrate::*;
 use crate::mimu;
+use crate::stats::{median, rms};
 
 /// Static intervals of exp_1 … exp_6 with the default detection (`None` without the data).
 fn experiments() -> Option<&'static Vec<Vec<StaticInterval>>> {
@@ -48,20 +48,6 @@ fn fmt(v: &[f64]) -> String {
         .map(|x| format!("{x:6.2}"))
         .collect::<Vec<_>>()
         .join(" ")
-}
-
-fn median(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    if s.is_empty() {
-        return f64::NAN;
-    }
-    let n = s.len();
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
 }
 
 #[test]
@@ -138,7 +124,7 @@ fn model_validity_even_odd() {
             let row: Vec<f64> = cal
                 .residuals_mg(&odd, true)
                 .iter()
-                .map(|r| rms(r))
+                .map(|r| rms(r.iter()))
                 .collect();
             eprintln!("  exp_{}: {}", e + 1, fmt(&row));
             per_exp.push(row);
@@ -157,13 +143,10 @@ fn model_validity_even_odd() {
         let (_, odd) = split(p);
         let row: Vec<f64> = (0..8)
             .map(|i| {
-                rms(&odd
-                    .iter()
-                    .map(|q| {
-                        let a = q.accel_g[i];
-                        ((a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt() - 1.0) * 1e3
-                    })
-                    .collect::<Vec<_>>())
+                rms(odd.iter().map(|q| {
+                    let a = q.accel_g[i];
+                    ((a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt() - 1.0) * 1e3
+                }))
             })
             .collect();
         eprintln!("  exp_{}: {}", e + 1, fmt(&row));
@@ -307,7 +290,11 @@ fn repeatability_and_biases_only() {
     let mut bias_only = Vec::new();
     eprintln!("(c) exp_1 calibration on exp_k: |a| − 1 g RMS over the 20 poses, mg, IMU 1 … 8");
     for (e, p) in d.iter().enumerate().skip(1) {
-        let table: Vec<f64> = cal.residuals_mg(p, false).iter().map(|r| rms(r)).collect();
+        let table: Vec<f64> = cal
+            .residuals_mg(p, false)
+            .iter()
+            .map(|r| rms(r.iter()))
+            .collect();
         let (_, up) = reestimate_biases(&file, p, &BiasOptions::default()).unwrap();
         // Also out of sample: biases from the even poses, tested on the odd ones.
         let (even, odd) = split(p);
@@ -315,17 +302,13 @@ fn repeatability_and_biases_only() {
         let oos: Vec<f64> = (0..8)
             .map(|i| {
                 let g = &f2.groups[i];
-                rms(&odd
-                    .iter()
-                    .map(|q| {
-                        let m = linalg::mat3(&g.accel_matrix_g_per_count);
-                        ((m * (linalg::vec3(&q.accel_counts[i])
-                            - linalg::vec3(&g.accel_bias_counts)))
+                rms(odd.iter().map(|q| {
+                    let m = linalg::mat3(&g.accel_matrix_g_per_count);
+                    ((m * (linalg::vec3(&q.accel_counts[i]) - linalg::vec3(&g.accel_bias_counts)))
                         .norm()
-                            - 1.0)
-                            * 1e3
-                    })
-                    .collect::<Vec<_>>())
+                        - 1.0)
+                        * 1e3
+                }))
             })
             .collect();
         eprintln!(

@@ -98,7 +98,7 @@ fn max_rel(a: &Mat3, b: &Matrix3<f64>) -> f64 {
 fn noise_free_recovery_with_drift() {
     let mut rng = Rng::new(1);
     let t = truth(&mut rng, true);
-    let dirs: Vec<Vec3> = (0..20).map(|_| rng.unit()).collect();
+    let dirs: Vec<Vec3> = (0..20).map(|_| rng.unit_vector()).collect();
     let p = poses(&t, &dirs, 0.0, 0.25, &mut rng);
     let cal = calibrate_static(&p, &StaticCalOptions::default()).unwrap();
     for (i, c) in cal.imus.iter().enumerate() {
@@ -136,7 +136,7 @@ fn noise_free_recovery_with_drift() {
 fn noise_free_recovery_per_imu_and_constant_bias() {
     let mut rng = Rng::new(2);
     let t = truth(&mut rng, false);
-    let dirs: Vec<Vec3> = (0..12).map(|_| rng.unit()).collect();
+    let dirs: Vec<Vec3> = (0..12).map(|_| rng.unit_vector()).collect();
     let p = poses(&t, &dirs, 0.0, 0.25, &mut rng);
     for opts in [
         StaticCalOptions {
@@ -164,7 +164,7 @@ fn noise_free_recovery_per_imu_and_constant_bias() {
 fn noisy_recovery_is_noise_limited() {
     let mut rng = Rng::new(3);
     let t = truth(&mut rng, true);
-    let dirs: Vec<Vec3> = (0..20).map(|_| rng.unit()).collect();
+    let dirs: Vec<Vec3> = (0..20).map(|_| rng.unit_vector()).collect();
     // 0.3 counts on each mean (≈ 10 counts per sample over 1400 samples, like the MPU9150 at rest).
     let p = poses(&t, &dirs, 0.3, 0.3, &mut rng);
     let cal = calibrate_static(&p, &StaticCalOptions::default()).unwrap();
@@ -193,7 +193,7 @@ fn noisy_recovery_is_noise_limited() {
         d: vec![Vector3::zeros(); 8],
         ..t
     };
-    let fresh: Vec<Vec3> = (0..10).map(|_| rng.unit()).collect();
+    let fresh: Vec<Vec3> = (0..10).map(|_| rng.unit_vector()).collect();
     let q = poses(&t2, &fresh, 0.3, 0.3, &mut rng);
     for r in cal.residuals_mg(&q, false) {
         assert!(rms(&r) < 0.4, "{r:?}");
@@ -204,7 +204,7 @@ fn noisy_recovery_is_noise_limited() {
 fn magnitude_fit_and_alignment_alone() {
     let mut rng = Rng::new(4);
     let t = truth(&mut rng, false);
-    let dirs: Vec<Vec3> = (0..9).map(|_| rng.unit()).collect();
+    let dirs: Vec<Vec3> = (0..9).map(|_| rng.unit_vector()).collect();
     let p = poses(&t, &dirs, 0.0, 0.25, &mut rng);
     let mut own = Vec::new();
     for i in 0..8 {
@@ -244,7 +244,7 @@ fn magnitude_fit_and_alignment_alone() {
 fn bad_inputs_are_errors() {
     let mut rng = Rng::new(5);
     let t = truth(&mut rng, false);
-    let dirs: Vec<Vec3> = (0..12).map(|_| rng.unit()).collect();
+    let dirs: Vec<Vec3> = (0..12).map(|_| rng.unit_vector()).collect();
     let p = poses(&t, &dirs, 0.0, 0.25, &mut rng);
     let o = StaticCalOptions::default();
     assert!(matches!(

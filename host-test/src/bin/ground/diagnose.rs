@@ -1,0 +1,100 @@
+//! `ground diagnose`: the sim-to-real diagnosis of a static cluster recording.
+
+use crate::common::{any_calib, apply_window, print_loaded, spinner};
+use anyhow::{Context, Result};
+use clap::ValueEnum;
+use host_test::load;
+use shared::wire::clock::FPGA_BASE_RATE_MILLIHZ;
+use std::path::PathBuf;
+
+#[derive(Clone, Copy, ValueEnum)]
+enum WeightsArg {
+    /// Equal weights (the seed's mean).
+    Equal,
+    /// Inverse white-noise variance.
+    InverseVariance,
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Static recording: interchange CSV or FPGA frame log.
+    recording: PathBuf,
+    /// Time window START:END in seconds.
+    #[arg(long)]
+    window: Option<String>,
+    /// Output folder for report.txt and diagnose.png.
+    #[arg(long, default_value = "diagnose-out")]
+    out: PathBuf,
+    /// JSON result file.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Weights of the cluster mean.
+    #[arg(long, value_enum, default_value = "equal")]
+    weights: WeightsArg,
+    /// Override: leave out octave tau whose half holds fewer averaging blocks (default: every tau down to 4 blocks,
+    /// each with its own EDF).
+    #[arg(long)]
+    min_blocks: Option<usize>,
+    /// MIMU4444 stream: diagnose the longest static interval (found as `calibrate --static` finds poses).
+    #[arg(long, conflicts_with = "window")]
+    longest_static: bool,
+    /// Calibration table (.bin) for raw inputs.
+    #[arg(long)]
+    calib: Option<PathBuf>,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    use host_test::diagnose::{self, Options, WeightRule, report};
+    let cal = any_calib(&a.calib)?;
+    let pb = spinner("reading");
+    let mut loaded = load::load_with(&a.recording, cal.as_ref(), FPGA_BASE_RATE_MILLIHZ)?;
+    // Through `suspend`: the spinner's own `println` prints nothing when stderr is not a terminal.
+    pb.suspend(|| print_loaded(&loaded));
+    if let Some(w) = &a.window {
+        apply_window(&mut loaded.recording, w)?;
+    }
+    if a.longest_static {
+        let m = host_test::mimu::read(&a.recording)
+            .map_err(|e| anyhow::anyhow!("--longest-static needs a MIMU4444 stream: {e}"))?;
+        let poses = host_test::calibrate::detect_static(&m, &Default::default())
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        let p = poses
+            .iter()
+            .max_by(|x, y| (x.end_s - x.start_s).total_cmp(&(y.end_s - y.start_s)))
+            .context("no static interval found")?;
+        pb.println(format!(
+            "longest static interval: {:.1} … {:.1} s ({:.1} s of {} poses)",
+            p.start_s,
+            p.end_s,
+            p.end_s - p.start_s,
+            poses.len()
+        ));
+        // One frame interval past the end keeps the last frame.
+        loaded.recording = loaded.recording.window(p.start_s, p.end_s + 1e-3);
+    }
+    pb.set_message("fitting noise models and effects");
+    let opts = Options {
+        weights: match a.weights {
+            WeightsArg::Equal => WeightRule::Equal,
+            WeightsArg::InverseVariance => WeightRule::InverseVariance,
+        },
+        min_blocks: a.min_blocks.unwrap_or(Options::default().min_blocks),
+        ..Options::default()
+    };
+    let r = diagnose::diagnose(&loaded.recording, &opts).map_err(anyhow::Error::msg)?;
+    pb.finish_and_clear();
+    let source = a.recording.display().to_string();
+    let text = report::write(&r, &a.out, &source).map_err(anyhow::Error::msg)?;
+    print!("{text}");
+    println!(
+        "\nreport: {}, plot: {}",
+        a.out.join(report::TEXT_FILE).display(),
+        a.out.join(report::PLOT_FILE).display()
+    );
+    if let Some(j) = &a.json {
+        std::fs::write(j, serde_json::to_string_pretty(&r)?)
+            .with_context(|| format!("writing {}", j.display()))?;
+        println!("json: {}", j.display());
+    }
+    Ok(())
+}

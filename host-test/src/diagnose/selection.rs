@@ -1,0 +1,171 @@
+//! Selection on the held-out half: which candidates act, added while they shrink the excess χ².
+
+use super::*;
+
+pub(super) fn axis_label(kind: SensorKind, axis: usize) -> String {
+    format!(
+        "{}{}",
+        kind.prefix(),
+        AXIS_NAMES.get(axis).copied().unwrap_or('?')
+    )
+}
+
+/// Where a chosen effect acts on the held-out half: (region, τ range, τ of max, max share). The region is the
+/// dominant term of the effect's own shape (`nature`, shared processes) or else of the typical sensor, at the τ of
+/// its largest share.
+pub(super) fn acts(
+    nature: Option<Terms>,
+    h: &Half,
+    w: &[f64],
+    full: &Model,
+    without: &Model,
+    typ: &Terms,
+) -> Acts {
+    let share: Vec<f64> = (0..h.len())
+        .map(|k| {
+            let a = full.avar(w, h.tau_s[k], h.typical[k], h.temp[k]);
+            let b = without.avar(w, h.tau_s[k], h.typical[k], h.temp[k]);
+            if a > 0.0 { ((a - b) / a).abs() } else { 0.0 }
+        })
+        .collect();
+    let Some(kmax) = (0..share.len()).max_by(|&a, &b| share[a].total_cmp(&share[b])) else {
+        return ("white".into(), [0.0; 2], 0.0, 0.0);
+    };
+    let top = share[kmax];
+    let inside: Vec<usize> = (0..share.len())
+        .filter(|&k| share[k] >= 0.5 * top)
+        .collect();
+    let lo = inside.first().map_or(h.tau_s[kmax], |&k| h.tau_s[k]);
+    let hi = inside.last().map_or(h.tau_s[kmax], |&k| h.tau_s[k]);
+    (
+        region_name(nature.as_ref().unwrap_or(typ), h.tau_s[kmax]).into(),
+        [lo, hi],
+        h.tau_s[kmax],
+        top,
+    )
+}
+
+/// Memoised [`scan_threshold`].
+pub(super) fn threshold(cache: &mut BTreeMap<(usize, u64), f64>, n: usize, p: f64) -> f64 {
+    *cache
+        .entry((n, p.to_bits()))
+        .or_insert_with(|| scan_threshold(n, p))
+}
+
+/// What phase 1 keeps of an axis for the sibling pass and the report.
+pub(super) struct AxisState {
+    pub(super) hf: Half,
+    pub(super) hw: Half,
+    /// The sensors' octave OADEV of the whole record.
+    pub(super) pts_whole: Vec<Vec<AnalysisPoint>>,
+    pub(super) hh: Half,
+    pub(super) cands: Vec<Candidate>,
+    pub(super) chosen: Vec<usize>,
+    pub(super) wts: Vec<f64>,
+    pub(super) typical: NoiseFit,
+    pub(super) typ_terms: Terms,
+    pub(super) model_misfit: f64,
+}
+
+/// Greedy selection on the held-out half: while the remaining gap is significant (scan statistic above `thr`),
+/// add the candidate (of the `allowed` kinds) that lowers the held-out `Σ z²` most, if it removes at least
+/// `min_shrink` of the excess over the point count.
+pub(super) fn select(
+    cands: &[Candidate],
+    hw: &Half,
+    hh: &Half,
+    wts: &[f64],
+    opts: &Options,
+    thr: f64,
+    allowed: Option<&[&str]>,
+) -> Vec<usize> {
+    let ns = wts.len();
+    let mut chosen: Vec<usize> = Vec::new();
+    loop {
+        let refs: Vec<&Candidate> = chosen.iter().map(|&i| &cands[i]).collect();
+        let m = build(ns, &refs);
+        let pts = evaluate(&m, hh, wts, opts.model_tolerance);
+        if !significant(&evaluate(&m, hw, wts, opts.model_tolerance), thr) {
+            break;
+        }
+        let current = chi2(&pts);
+        let excess_now = (current - pts.len() as f64).max(0.0);
+        let mut scored: Vec<(f64, usize)> = Vec::new();
+        for (i, c) in cands.iter().enumerate() {
+            if chosen.contains(&i)
+                || refs.iter().any(|r| r.kind == c.kind)
+                || allowed.is_some_and(|a| !a.contains(&c.kind))
+                || (c.level.is_some() && refs.iter().any(|r| r.level.is_some()))
+            {
+                continue;
+            }
+            let mut with = refs.clone();
+            with.push(c);
+            let x = chi2(&evaluate(&build(ns, &with), hh, wts, opts.model_tolerance));
+            if x <= current - opts.min_shrink * excess_now && x < current {
+                scored.push((x, i));
+            }
+        }
+        let best = scored.iter().copied().min_by(|a, b| a.0.total_cmp(&b.0));
+        // A measured cause beats an anonymous drift that explains the same: with the temperature recorded,
+        // `thermal` is taken when it removes at least `THERMAL_PREFERENCE` of what the best candidate removes.
+        let thermal = scored
+            .iter()
+            .copied()
+            .find(|&(_, i)| cands[i].kind == "thermal");
+        match (best, thermal) {
+            (Some((xb, _)), Some((xt, i)))
+                if current - xt >= THERMAL_PREFERENCE * (current - xb) =>
+            {
+                chosen.push(i);
+            }
+            (Some((_, i)), _) => chosen.push(i),
+            _ => break,
+        }
+    }
+    chosen
+}
+
+/// The sibling test of an axis for the kinds found on the other axes of its sensor: each such candidate (fitted on
+/// the first half) predicts how much it lowers every held-out z-score, `s_k`; the projection of the held-out P0
+/// z-scores on that shape, `T = Σ z_k s_k / √(sᵀ R s)` (R the null correlation of neighbouring octaves), is N(0, 1)
+/// without an effect, whatever the candidate, because the halves are independent. The best candidate with
+/// `T > z(1 − p_sibling)` that also passes the shrink rule is taken.
+pub(super) fn sibling(st: &AxisState, kinds: &[&str], opts: &Options) -> Option<usize> {
+    let ns = st.wts.len();
+    let p0 = evaluate(
+        &Model::independent(ns),
+        &st.hh,
+        &st.wts,
+        opts.model_tolerance,
+    );
+    let current = chi2(&p0);
+    let excess_now = (current - p0.len() as f64).max(0.0);
+    let z_crit = Normal::new(0.0, 1.0)
+        .map(|n| n.inverse_cdf(1.0 - opts.p_sibling))
+        .unwrap_or(f64::INFINITY);
+    let mut best: Option<(f64, usize)> = None;
+    for (i, c) in st.cands.iter().enumerate() {
+        if !kinds.contains(&c.kind) {
+            continue;
+        }
+        let with = evaluate(&build(ns, &[c]), &st.hh, &st.wts, opts.model_tolerance);
+        let shift: Vec<f64> = p0.iter().zip(&with).map(|(a, b)| a.z - b.z).collect();
+        let num: f64 = p0.iter().zip(&shift).map(|(a, s)| a.z * s).sum();
+        let mut var = 0.0;
+        for (a, sa) in shift.iter().enumerate() {
+            for (b, sb) in shift.iter().enumerate() {
+                var += sa * sb * octave_corr(a.abs_diff(b));
+            }
+        }
+        let x = chi2(&with);
+        if var > 0.0
+            && num / var.sqrt() > z_crit
+            && x <= current - opts.min_shrink * excess_now
+            && best.is_none_or(|(bx, _)| x < bx)
+        {
+            best = Some((x, i));
+        }
+    }
+    best.map(|(_, i)| i)
+}

@@ -1,0 +1,179 @@
+//! Per half and axis: the single sensors' and the cluster's Allan variances, EDFs and noise types, and the small statistics they use.
+
+use super::*;
+pub(super) use crate::stats::{median, rms};
+
+pub(super) fn octave(an: &mut Analyzer, y: &[f64], tau0: f64) -> Vec<AnalysisPoint> {
+    an.analyze(
+        DevKind::Oadev,
+        y,
+        tau0,
+        &TauSpec::Octave,
+        &AllanOptions::default(),
+    )
+}
+
+pub(super) fn weighted_mean(series: &[&[f64]], w: &[f64]) -> Vec<f64> {
+    let len = series.iter().map(|s| s.len()).min().unwrap_or(0);
+    let mut out = vec![0.0; len];
+    for (s, wi) in series.iter().zip(w) {
+        for (o, x) in out.iter_mut().zip(s.iter()) {
+            *o += wi * x;
+        }
+    }
+    out
+}
+
+/// The typical model as five terms.
+pub(super) fn terms_of(f: &NoiseFit) -> Terms {
+    Terms([
+        3.0 * f.quantization.powi(2),
+        f.white.powi(2),
+        noisefit::FLICKER_AVAR * f.bias_instability.powi(2),
+        f.random_walk.powi(2) / 3.0,
+        0.0,
+    ])
+}
+
+/// Noise type (α of the rate's PSD) of the term that dominates `t` at `tau_s`: quantisation 2 (white phase),
+/// white 0, flicker −1, random walk and ramp −2.
+pub(super) fn dominant_alpha(t: &Terms, tau_s: f64) -> i32 {
+    let b = Terms::basis(tau_s);
+    let k = (0..5)
+        .max_by(|&i, &j| (b[i] * t.0[i]).total_cmp(&(b[j] * t.0[j])))
+        .unwrap_or(1);
+    [2, 0, -1, -2, -2][k]
+}
+
+/// Region name of a τ under the typical model.
+pub(super) fn region_name(t: &Terms, tau_s: f64) -> &'static str {
+    match dominant_alpha(t, tau_s) {
+        2 => "quantization",
+        0 => "white",
+        -1 => "flicker",
+        _ => "random_walk",
+    }
+}
+
+/// EDF of an OADEV at factor `m` on `n` samples for noise type `alpha` (fallback: the white-FM count).
+pub(super) fn edf(alpha: i32, m: usize, n: usize) -> f64 {
+    edf_for_kind(DevKind::Oadev, alpha, m, n)
+        .unwrap_or_else(|| (1.5 * n as f64 / m.max(1) as f64).max(1.0))
+}
+
+/// `E[χ²_ν/ν] / median(χ²_ν/ν)`: corrects a median of variance estimates with `nu` EDF to their mean.
+pub(super) fn median_to_mean(nu: f64) -> f64 {
+    ChiSquared::new(nu)
+        .map(|c| nu / c.inverse_cdf(0.5))
+        .ok()
+        .filter(|x| x.is_finite() && *x > 0.0)
+        .unwrap_or(1.0)
+}
+
+/// z-score of a χ²_ν/ν variable observed at `ratio`: Φ⁻¹(F_χ²ν(ν·ratio)), from the tail the value lies in (so
+/// that z stays exact far out), clamped to ±30.
+pub(super) fn chi2_z(ratio: f64, nu: f64) -> f64 {
+    let (Ok(c), Ok(n)) = (ChiSquared::new(nu), Normal::new(0.0, 1.0)) else {
+        return 0.0;
+    };
+    let x = nu * ratio.max(0.0);
+    let z = if ratio > 1.0 {
+        -n.inverse_cdf(c.sf(x).max(1e-300))
+    } else {
+        n.inverse_cdf(c.cdf(x).max(1e-300))
+    };
+    if z.is_finite() {
+        z.clamp(-30.0, 30.0)
+    } else {
+        0.0
+    }
+}
+
+/// The statistics of one half of one axis at every octave τ it supports.
+#[derive(Clone, Debug, Default)]
+pub(super) struct Half {
+    pub(super) n: usize,
+    pub(super) tau_s: Vec<f64>,
+    pub(super) m: Vec<usize>,
+    /// Cluster Allan variance (weighted mean).
+    pub(super) cluster: Vec<f64>,
+    /// Its EDF and noise type.
+    pub(super) edf: Vec<f64>,
+    pub(super) alpha: Vec<i32>,
+    /// `singles[i][k]`: sensor i's Allan variance.
+    pub(super) singles: Vec<Vec<f64>>,
+    /// Bias-corrected median of the singles.
+    pub(super) typical: Vec<f64>,
+    /// Uncertainty of ln(typical) (variance scale).
+    pub(super) typical_sigma: Vec<f64>,
+    /// EDF of one sensor's variance.
+    pub(super) single_edf: Vec<f64>,
+    /// Temperature Allan variance, °C².
+    pub(super) temp: Vec<Option<f64>>,
+}
+
+impl Half {
+    /// Measures one half: `series` the sensors, `w` the weights, `typ` the typical model (for noise types).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn measure(
+        an: &mut Analyzer,
+        series: &[&[f64]],
+        w: &[f64],
+        tau0: f64,
+        min_blocks: usize,
+        typ: &Terms,
+        singles_pts: &[Vec<AnalysisPoint>],
+        temp: Option<&[f64]>,
+    ) -> Half {
+        let n = series.iter().map(|s| s.len()).min().unwrap_or(0);
+        let mean = weighted_mean(series, w);
+        let cl = octave(an, &mean, tau0);
+        let temp_pts = temp.map(|t| octave(an, t, tau0)).unwrap_or_default();
+        let ns = series.len();
+        let mut h = Half {
+            n,
+            singles: vec![Vec::new(); ns],
+            ..Half::default()
+        };
+        for (k, p) in cl.iter().enumerate() {
+            let m = p.m.max(1);
+            let ok = n / m >= min_blocks
+                && p.dev > 0.0
+                && singles_pts
+                    .iter()
+                    .all(|s| s.get(k).is_some_and(|q| q.m == p.m));
+            if !ok {
+                continue;
+            }
+            // The noise type of the typical sensor's model (first half) sets the EDF: it is the type of the
+            // cluster under the null hypothesis the z-scores test (the cluster's own curve at four blocks would
+            // identify a type by chance).
+            let a_typ = dominant_alpha(typ, p.tau_s);
+            let alpha = a_typ;
+            let nu = edf(alpha, m, n);
+            let d: Vec<f64> = singles_pts.iter().map(|s| s[k].dev.powi(2)).collect();
+            let nu_s = edf(a_typ, m, n);
+            h.tau_s.push(p.tau_s);
+            h.m.push(m);
+            h.cluster.push(p.dev * p.dev);
+            h.edf.push(nu);
+            h.alpha.push(alpha);
+            h.typical.push(median(&d) * median_to_mean(nu_s));
+            // The median of N estimates has ≈ π/2 × the variance of their mean; ln of a variance estimate has
+            // variance 2/ν.
+            h.typical_sigma
+                .push((std::f64::consts::FRAC_PI_2 * 2.0 / nu_s / ns.max(1) as f64).sqrt());
+            h.single_edf.push(nu_s);
+            for (hs, di) in h.singles.iter_mut().zip(&d) {
+                hs.push(*di);
+            }
+            h.temp
+                .push(temp_pts.iter().find(|q| q.m == p.m).map(|q| q.dev * q.dev));
+        }
+        h
+    }
+
+    pub(super) fn len(&self) -> usize {
+        self.tau_s.len()
+    }
+}
