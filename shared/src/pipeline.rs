@@ -870,6 +870,6 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     }
 }
 
-// The golden stream test is in `tests/golden.rs`.
+// The golden stream test is in `tests/acceptance/golden.rs`.
 #[cfg(test)]
 mod tests;

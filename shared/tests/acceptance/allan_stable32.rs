@@ -2,16 +2,6 @@
 //! (`testdata/allan-reference`, from allantools' test suite) at every octave τ, to 2e-4 relative, with the same
 //! number of terms.
 
-// Test code may panic: a failed assertion or `expect` is how a test reports. The no-panic lints (`[lints]` in
-// Cargo.toml) are for the code that flies.
-#![allow(
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic,
-    clippy::indexing_slicing,
-    clippy::arithmetic_side_effects
-)]
-
 use shared::allan::AllanAccumulator;
 use std::path::PathBuf;
 

@@ -16,16 +16,6 @@
 //! The stream uses integer noise and only exact f64 arithmetic (`board::nominal_codes`, `round`), so it is the same
 //! on every platform.
 
-// Test code may panic: a failed assertion or `unwrap` is how a test reports. The no-panic lints (`[lints]` in
-// Cargo.toml) are for the code that flies.
-#![allow(
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic,
-    clippy::indexing_slicing,
-    clippy::arithmetic_side_effects
-)]
-
 use rand_xoshiro::SplitMix64;
 use rand_xoshiro::rand_core::{Rng as _, SeedableRng};
 use serde::Serialize;
