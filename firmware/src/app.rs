@@ -39,8 +39,7 @@ use shared::calib::encoded_len_max;
 use shared::pipeline::{AllanBank, Output, Pipeline};
 use shared::storage::CalStore;
 use shared::telemetry::{
-    CalSource, FaultRecord, HousekeepingReport, MAX_MESSAGE_LEN, RxErrorCounts, StoreOutcome,
-    Telemetry, encode,
+    CalSource, FaultRecord, HousekeepingReport, RxErrorCounts, StoreOutcome, Telemetry,
 };
 use shared::wire::FpgaControl;
 use shared::wire::frame::GROUPS;
@@ -485,7 +484,6 @@ where
     W::Error: Loggable,
 {
     let node = BusNode::new(app.bus);
-    let mut payload = [0u8; MAX_MESSAGE_LEN];
     let mut wire = [0u8; MAX_WIRE_FRAME];
     loop {
         app.tick(Task::BusTx);
@@ -508,9 +506,7 @@ where
             }
         };
         let frame = match &item {
-            BusOut::Telemetry(t) => encode(t, &mut payload)
-                .map_err(|_| ())
-                .and_then(|p| node.encode_telemetry(p, &mut wire).map_err(|_| ())),
+            BusOut::Telemetry(t) => node.encode_message(t, &mut wire).map_err(|_| ()),
             BusOut::PingReply { header, payload } => node
                 .encode_reply(header, payload, &mut wire)
                 .map_err(|_| ()),

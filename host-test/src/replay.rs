@@ -12,7 +12,7 @@ use shared::bus::{BusConfig, BusNode, MAX_WIRE_FRAME};
 use shared::calib::{AXES, CalibrationTable, FRAC_BITS, GroupCal, RawCounts};
 use shared::fuse::FusionMode;
 use shared::pipeline::{ALLAN_CHANNELS, AllanBank, Output, Pipeline, PipelineConfig};
-use shared::telemetry::{Command, CommandEnvelope, MAX_MESSAGE_LEN, Telemetry, encode};
+use shared::telemetry::{Command, CommandEnvelope, Telemetry, encode};
 use shared::wire::frame::GROUPS;
 use shared::wire::{FpgaControl, LinkCounters};
 
@@ -107,7 +107,6 @@ pub struct HostCore {
     node: BusNode,
     keep_messages: bool,
     out: ReplayOutput,
-    payload: Vec<u8>,
     wire: Vec<u8>,
 }
 
@@ -125,7 +124,6 @@ impl HostCore {
             node: BusNode::new(bus),
             keep_messages,
             out: ReplayOutput::default(),
-            payload: vec![0; MAX_MESSAGE_LEN],
             wire: vec![0; MAX_WIRE_FRAME],
         }
     }
@@ -184,8 +182,7 @@ impl HostCore {
     }
 
     fn telemetry(&mut self, t: Telemetry) {
-        if let Ok(p) = encode(&t, &mut self.payload)
-            && let Ok(n) = self.node.encode_telemetry(p, &mut self.wire)
+        if let Ok(n) = self.node.encode_message(&t, &mut self.wire)
             && let Some(bytes) = self.wire.get(..n)
         {
             self.out.telemetry.extend_from_slice(bytes);

@@ -254,7 +254,7 @@ mod tests {
     use super::*;
     use shared::allan::AllanLevel;
     use shared::bus::BusNode;
-    use shared::telemetry::{AllanReport, encode};
+    use shared::telemetry::AllanReport;
 
     #[test]
     fn allan_reports_become_deviations_on_the_ground() {
@@ -270,9 +270,10 @@ mod tests {
                 sum_sq: 2 * 99 * 16 * 2500,
             },
         };
-        let (mut payload, mut wire) = ([0u8; 64], [0u8; 200]);
-        let p = encode(&Telemetry::Allan(report), &mut payload).unwrap();
-        let n = node.encode_telemetry(p, &mut wire).unwrap();
+        let mut wire = [0u8; 200];
+        let n = node
+            .encode_message(&Telemetry::Allan(report), &mut wire)
+            .unwrap();
         let log = TelemetryLog::decode(&wire[..n], &BusConfig::DEFAULT);
         let mut out = Vec::new();
         assert_eq!(log.write_allan_csv(&mut out).unwrap(), 1);

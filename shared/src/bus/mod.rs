@@ -144,6 +144,21 @@ impl BusNode {
         })
     }
 
+    /// A telemetry message as it goes on the bus: postcard (the message, `telemetry::encode`), then CSP to the
+    /// ground's telemetry port, then KISS, in `out`; returns its length. The one encoder of the firmware's bus task
+    /// and the ground's replay.
+    pub fn encode_message(
+        &self,
+        message: &crate::telemetry::Telemetry,
+        out: &mut [u8],
+    ) -> Result<usize, CspError> {
+        let mut payload = [0u8; crate::telemetry::MAX_MESSAGE_LEN];
+        // Every message fits `MAX_MESSAGE_LEN` (telemetry's tests); the error is the output's.
+        let payload =
+            crate::telemetry::encode(message, &mut payload).map_err(|_| CspError::Invalid)?;
+        self.encode_telemetry(payload, out)
+    }
+
     /// A telemetry packet (to the ground's telemetry port) as a KISS frame in `out`; returns its length.
     pub fn encode_telemetry(&self, payload: &[u8], out: &mut [u8]) -> Result<usize, CspError> {
         let c = &self.config;

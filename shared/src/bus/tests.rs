@@ -348,6 +348,33 @@ fn bad_frames_give_typed_errors() {
     );
 }
 
+/// `encode_message` is `telemetry::encode` then `encode_telemetry`, and the frame decodes back to the message.
+#[test]
+fn a_message_goes_on_the_bus_as_postcard_in_csp_in_kiss() {
+    use crate::telemetry::{Ack, Telemetry, decode, encode};
+    let node = BusNode::new(BusConfig::DEFAULT);
+    let msg = Telemetry::Ack(Ack {
+        tag: 7,
+        result: Ok(()),
+    });
+    let (mut payload, mut a, mut b) = ([0u8; 64], [0u8; MAX_WIRE_FRAME], [0u8; MAX_WIRE_FRAME]);
+    let n = node.encode_message(&msg, &mut a).unwrap();
+    let m = node
+        .encode_telemetry(encode(&msg, &mut payload).unwrap(), &mut b)
+        .unwrap();
+    assert_eq!(a[..n], b[..m]);
+    let mut kiss = KissDecoder::<MAX_FRAME>::new();
+    let mut input = &a[..n];
+    let frame = kiss.decode(&mut input).unwrap().unwrap();
+    let packet = CspPacket::parse(frame, CspVersion::V1).unwrap();
+    assert_eq!(decode::<Telemetry>(packet.payload), Ok(msg));
+    // Too small an output: a typed error.
+    assert_eq!(
+        node.encode_message(&msg, &mut a[..4]),
+        Err(CspError::Invalid)
+    );
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(2000))]
 
