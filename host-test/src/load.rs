@@ -98,7 +98,6 @@ pub fn mimu_recording(
     m: &crate::mimu::Recording,
     cal: Option<&CalibrationTable<MIMU_IMUS>>,
 ) -> Recording {
-    use crate::formats::csv::{Column, SensorKind};
     use shared::calib::RawCounts;
     let n = m.frames.len();
     let mut cols: Vec<Vec<f64>> = (0..MIMU_IMUS * 6).map(|_| Vec::with_capacity(n)).collect();
@@ -130,26 +129,7 @@ pub fn mimu_recording(
             }
         }
     }
-    let mut columns: Vec<Column> = cols
-        .into_iter()
-        .enumerate()
-        .map(|(k, data)| Column {
-            group: k / 6,
-            kind: if k % 6 < 3 {
-                SensorKind::Gyro
-            } else {
-                SensorKind::Accel
-            },
-            axis: k % 3,
-            data,
-        })
-        .collect();
-    columns.sort_by_key(|c| (c.kind, c.group, c.axis));
-    Recording {
-        t_s: m.times_s(),
-        temp_c: None,
-        columns,
-    }
+    Recording::from_group_columns(m.times_s(), cols)
 }
 
 /// A warning about what the link decoder dropped or repeated in `path` (`None` when nothing): corrupt frames,

@@ -5,7 +5,7 @@
 //! CSV's columns in its order, without `temp_c` (`np.save("rec.npy", np.column_stack([t, g00x, g00y, …]))`). As in
 //! the CSV every value must be finite and `t` must increase; anything else is an error naming the row and column.
 
-use super::csv::{Column, Recording, SensorKind, column_name};
+use super::csv::{Recording, SensorKind, column_name};
 use std::io::Read;
 use std::path::Path;
 
@@ -107,26 +107,7 @@ pub fn parse(r: impl Read) -> Result<Recording, String> {
             t_s.get(i).copied().unwrap_or(f64::NAN)
         ));
     }
-    let mut columns: Vec<Column> = all
-        .into_iter()
-        .enumerate()
-        .map(|(k, data)| Column {
-            group: k / PER_GROUP,
-            kind: if k % PER_GROUP < 3 {
-                SensorKind::Gyro
-            } else {
-                SensorKind::Accel
-            },
-            axis: k % 3,
-            data,
-        })
-        .collect();
-    columns.sort_by_key(|c| (c.kind, c.group, c.axis));
-    Ok(Recording {
-        t_s,
-        temp_c: None,
-        columns,
-    })
+    Ok(Recording::from_group_columns(t_s, all))
 }
 
 #[cfg(test)]
