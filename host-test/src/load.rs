@@ -1,4 +1,5 @@
-//! Opens any recording the tools accept: interchange CSV (by extension), FPGA frame log (the frame sync marker
+//! Opens any recording the tools accept: interchange CSV (by extension), NumPy `.npy` array (by extension or its
+//! magic bytes, `formats::npy`), FPGA frame log (the frame sync marker
 //! within its first bytes) or MIMU4444 stream (a valid 0xAA frame within its first bytes), and reads calibration
 //! files of either array (16 groups: our board; 8 IMUs: the MIMU4444) in any of their forms (.bin, .json, .toml).
 
@@ -14,6 +15,8 @@ use std::path::Path;
 pub enum InputKind {
     /// Interchange CSV.
     Csv,
+    /// NumPy `.npy` array.
+    Npy,
     /// FPGA frame log.
     FrameLog,
     /// MIMU4444 stream.
@@ -28,6 +31,13 @@ pub fn detect(path: &Path, head: &[u8]) -> Result<InputKind> {
     {
         return Ok(InputKind::Csv);
     }
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"))
+        || head.starts_with(NPY_MAGIC)
+    {
+        return Ok(InputKind::Npy);
+    }
     if head.windows(SYNC.len()).take(512).any(|w| w == SYNC) {
         return Ok(InputKind::FrameLog);
     }
@@ -35,11 +45,14 @@ pub fn detect(path: &Path, head: &[u8]) -> Result<InputKind> {
         return Ok(InputKind::Mimu);
     }
     bail!(
-        "{}: not a recognised recording (expected an interchange .csv, an FPGA frame log with the sync marker \
+        "{}: not a recognised recording (expected an interchange .csv, a NumPy .npy array, an FPGA frame log with the sync marker \
          1A CF FC 1D, or a MIMU4444 stream of 0xAA frames)",
         path.display()
     )
 }
+
+/// The first bytes of a `.npy` file.
+const NPY_MAGIC: &[u8] = b"\x93NUMPY";
 
 /// A loaded recording, with notes for the user (link statistics) and warnings (what was ignored or lost).
 pub struct Loaded {
@@ -85,7 +98,6 @@ pub fn mimu_recording(
     m: &crate::mimu::Recording,
     cal: Option<&CalibrationTable<MIMU_IMUS>>,
 ) -> Recording {
-    use crate::formats::csv::{Column, SensorKind};
     use shared::calib::RawCounts;
     let n = m.frames.len();
     let mut cols: Vec<Vec<f64>> = (0..MIMU_IMUS * 6).map(|_| Vec::with_capacity(n)).collect();
@@ -117,26 +129,7 @@ pub fn mimu_recording(
             }
         }
     }
-    let mut columns: Vec<Column> = cols
-        .into_iter()
-        .enumerate()
-        .map(|(k, data)| Column {
-            group: k / 6,
-            kind: if k % 6 < 3 {
-                SensorKind::Gyro
-            } else {
-                SensorKind::Accel
-            },
-            axis: k % 3,
-            data,
-        })
-        .collect();
-    columns.sort_by_key(|c| (c.kind, c.group, c.axis));
-    Recording {
-        t_s: m.times_s(),
-        temp_c: None,
-        columns,
-    }
+    Recording::from_group_columns(m.times_s(), cols)
 }
 
 /// A warning about what the link decoder dropped or repeated in `path` (`None` when nothing): corrupt frames,
@@ -172,9 +165,9 @@ pub fn link_warning(path: &Path, c: &shared::wire::LinkCounters, output: &str) -
 /// Loads a recording; raw formats go through `cal` (the factory default of our board, or the MIMU4444's nominal
 /// scales, when `None`).
 pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_millihz: u64) -> Result<Loaded> {
-    // A CSV is known by its name and streamed (never held whole in memory); the others are read whole.
+    // A CSV or .npy is known by its name and streamed (never held whole in memory); the others are read whole.
     let bytes = match detect(path, &[]) {
-        Ok(InputKind::Csv) => Vec::new(),
+        Ok(InputKind::Csv | InputKind::Npy) => Vec::new(),
         _ => std::fs::read(path).with_context(|| format!("reading {}", path.display()))?,
     };
     match detect(path, &bytes)? {
@@ -195,6 +188,26 @@ pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_millihz: u64)
                     .into_iter()
                     .map(|w| format!("{}: {w}", path.display()))
                     .collect(),
+            })
+        }
+        InputKind::Npy => {
+            if cal.is_some() {
+                bail!(
+                    "{}: a .npy array holds calibrated values (°/s, g); a calibration applies only to raw \
+                     recordings (FPGA frame log, MIMU4444 stream)",
+                    path.display()
+                );
+            }
+            let recording = if bytes.is_empty() {
+                crate::formats::npy::read(path)?
+            } else {
+                crate::formats::npy::parse(&bytes[..])
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+            };
+            Ok(Loaded {
+                recording,
+                notes: Vec::new(),
+                warnings: Vec::new(),
             })
         }
         InputKind::Mimu => {

@@ -119,6 +119,24 @@ fn edited_csv(d: &Path, name: &str, edit: impl Fn(usize, &mut Vec<String>)) -> P
     p
 }
 
+/// The test CSV with the cell at line index `row` (0: the header), column `col` replaced by `value`.
+fn csv_with_cell(d: &Path, name: &str, row: usize, col: usize, value: &str) -> PathBuf {
+    edited_csv(d, name, |i, c| {
+        if i == row {
+            c[col] = value.into();
+        }
+    })
+}
+
+/// The test CSV with every sensor cell of every data row set to `value`.
+fn csv_with_sensors(d: &Path, name: &str, value: &str) -> PathBuf {
+    edited_csv(d, name, |i, c| {
+        if i > 0 {
+            c.iter_mut().skip(1).for_each(|x| *x = value.into());
+        }
+    })
+}
+
 #[test]
 fn decode_to_a_full_disk_is_an_error() {
     let d = dir("decode-full");
@@ -286,11 +304,7 @@ fn replay_of_a_damaged_frame_log_warns_what_was_dropped() {
 fn kalibr_is_not_written_from_a_recording_without_noise() {
     let d = dir("kalibr");
     // All values NaN: the reader stops at the first one.
-    let nan = edited_csv(&d, "nan.csv", |i, c| {
-        if i > 0 {
-            c.iter_mut().skip(1).for_each(|x| *x = "NaN".into());
-        }
-    });
+    let nan = csv_with_sensors(&d, "nan.csv", "NaN");
     let k = d.join("imu.yaml");
     fails(
         &ground(&[&"allan", &nan, &"--out", &d.join("a.csv"), &"--kalibr", &k]),
@@ -303,11 +317,7 @@ fn kalibr_is_not_written_from_a_recording_without_noise() {
     );
     assert!(!k.exists());
     // Constant values: no white noise to report (Kalibr would take 0 for a perfect sensor).
-    let flat = edited_csv(&d, "flat.csv", |i, c| {
-        if i > 0 {
-            c.iter_mut().skip(1).for_each(|x| *x = "0.5".into());
-        }
-    });
+    let flat = csv_with_sensors(&d, "flat.csv", "0.5");
     fails(
         &ground(&[&"allan", &flat, &"--out", &d.join("a.csv"), &"--kalibr", &k]),
         &["--kalibr", "flat.csv", "no white-noise density"],
@@ -347,11 +357,7 @@ fn non_finite_cells_are_errors_with_line_and_column() {
         ("ninf.csv", "-Infinity"),
         ("huge.csv", "1e400"),
     ] {
-        let p = edited_csv(&d, name, |i, c| {
-            if i == 100 {
-                c[1] = cell.into();
-            }
-        });
+        let p = csv_with_cell(&d, name, 100, 1, cell);
         fails(
             &ground(&[&"allan", &p, &"--out", &d.join("a.csv")]),
             &[
@@ -362,11 +368,7 @@ fn non_finite_cells_are_errors_with_line_and_column() {
             ],
         );
     }
-    let p = edited_csv(&d, "nan_t.csv", |i, c| {
-        if i == 50 {
-            c[0] = "NaN".into();
-        }
-    });
+    let p = csv_with_cell(&d, "nan_t.csv", 50, 0, "NaN");
     fails(
         &ground(&[&"import", &p, &"--out", &d.join("o.csv")]),
         &["nan_t.csv", "line 51, column 1 (t)", "finite number"],
@@ -377,11 +379,7 @@ fn non_finite_cells_are_errors_with_line_and_column() {
 fn time_must_increase() {
     let d = dir("time");
     // A huge time in the middle: the next row goes back.
-    let p = edited_csv(&d, "huge_t.csv", |i, c| {
-        if i == 200 {
-            c[0] = "1e300".into();
-        }
-    });
+    let p = csv_with_cell(&d, "huge_t.csv", 200, 0, "1e300");
     fails(
         &ground(&[&"allan", &p, &"--out", &d.join("a.csv")]),
         &[
@@ -392,11 +390,7 @@ fn time_must_increase() {
         ],
     );
     // A repeated time.
-    let p = edited_csv(&d, "repeat.csv", |i, c| {
-        if i == 10 {
-            c[0] = "0".into();
-        }
-    });
+    let p = csv_with_cell(&d, "repeat.csv", 10, 0, "0");
     fails(
         &ground(&[&"import", &p, &"--out", &d.join("o.csv")]),
         &[

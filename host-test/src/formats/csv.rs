@@ -270,6 +270,31 @@ impl Recording {
         d.get(mid).copied().filter(|&x| x > 0.0)
     }
 
+    /// A recording from columns in group order — group 0's gyro x y z (°/s) and accel x y z (g), then group 1's, … —
+    /// sorted as the CSV reader sorts them; no temperature.
+    pub fn from_group_columns(t_s: Vec<f64>, columns: Vec<Vec<f64>>) -> Recording {
+        let mut columns: Vec<Column> = columns
+            .into_iter()
+            .enumerate()
+            .map(|(k, data)| Column {
+                group: k / 6,
+                kind: if k % 6 < 3 {
+                    SensorKind::Gyro
+                } else {
+                    SensorKind::Accel
+                },
+                axis: k % 3,
+                data,
+            })
+            .collect();
+        columns.sort_by_key(|c| (c.kind, c.group, c.axis));
+        Recording {
+            t_s,
+            temp_c: None,
+            columns,
+        }
+    }
+
     /// Column by name.
     pub fn column(&self, name: &str) -> Option<&Column> {
         self.columns.iter().find(|c| c.name() == name)

@@ -18,7 +18,8 @@ enum KindArg {
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Recording: interchange CSV or FPGA frame log.
+    /// Recording: interchange CSV, NumPy .npy array (t, then gx gy gz ax ay az per group), FPGA frame log or MIMU4444
+    /// stream.
     recording: PathBuf,
     /// Columns to analyse (comma-separated, e.g. g00x,g01x); the cluster means are always added.
     #[arg(long, value_delimiter = ',', conflicts_with = "all")]

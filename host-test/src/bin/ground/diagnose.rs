@@ -17,7 +17,7 @@ enum WeightsArg {
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Static recording: interchange CSV or FPGA frame log.
+    /// Static recording: interchange CSV, NumPy .npy array, FPGA frame log or MIMU4444 stream.
     recording: PathBuf,
     /// Time window START:END in seconds.
     #[arg(long)]

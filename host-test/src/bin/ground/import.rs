@@ -7,7 +7,8 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Input: FPGA frame log, MIMU4444 stream, or interchange CSV.
+    /// Input: FPGA frame log, MIMU4444 stream, interchange CSV or NumPy .npy array (t, then gx gy gz ax ay az per
+    /// group).
     input: PathBuf,
     /// Output CSV.
     #[arg(long)]
