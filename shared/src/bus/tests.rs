@@ -157,10 +157,8 @@ fn a_v2_node_serves_commands_pings_and_telemetry() {
         sport: 40,
         flags: 0,
     };
-    let mut wire = [0u8; MAX_WIRE_FRAME];
-    let len = CspPacket::emit_kiss(&to_us, CspVersion::V2, b"cmd", &mut wire).unwrap();
     assert_eq!(
-        one_event(&mut n, &wire[..len]),
+        deliver(&mut n, &to_us, CspVersion::V2, b"cmd"),
         Some((None, b"cmd".to_vec()))
     );
     let ping = CspHeader {
@@ -169,9 +167,9 @@ fn a_v2_node_serves_commands_pings_and_telemetry() {
         flags: FLAG_CRC32,
         ..to_us
     };
-    let len = CspPacket::emit_kiss(&ping, CspVersion::V2, &[7; MAX_PAYLOAD], &mut wire).unwrap();
-    let (header, payload) = one_event(&mut n, &wire[..len]).unwrap();
+    let (header, payload) = deliver(&mut n, &ping, CspVersion::V2, &[7; MAX_PAYLOAD]).unwrap();
     let header = header.expect("a ping");
+    let mut wire = [0u8; MAX_WIRE_FRAME];
     let len = n.encode_reply(&header, &payload, &mut wire).unwrap();
     let mut dec = KissDecoder::<MAX_FRAME>::new();
     let mut input = &wire[..len];
@@ -190,8 +188,7 @@ fn a_v2_node_serves_commands_pings_and_telemetry() {
         flags: FLAG_FRAG,
         ..to_us
     };
-    let len = CspPacket::emit_kiss(&frag, CspVersion::V2, b"x", &mut wire).unwrap();
-    assert_eq!(one_event(&mut n, &wire[..len]), None);
+    assert_eq!(deliver(&mut n, &frag, CspVersion::V2, b"x"), None);
     assert_eq!(n.counters().csp_errors, 1);
 }
 
@@ -203,6 +200,18 @@ fn crc_vectors() {
         [0xD9, 0x33, 0x1A, 0xA3]
     );
     assert_eq!(crate::crc::crc32c(&[0]), 0x527D_5351);
+}
+
+/// `payload` sent to `n` with header `h` in `version`: what `n` makes of it.
+fn deliver(
+    n: &mut BusNode,
+    h: &CspHeader,
+    version: CspVersion,
+    payload: &[u8],
+) -> Option<(Option<CspHeader>, Vec<u8>)> {
+    let mut wire = [0u8; MAX_WIRE_FRAME];
+    let len = CspPacket::emit_kiss(h, version, payload, &mut wire).unwrap();
+    one_event(n, &wire[..len])
 }
 
 fn one_event(n: &mut BusNode, wire: &[u8]) -> Option<(Option<CspHeader>, Vec<u8>)> {
@@ -282,17 +291,15 @@ fn commands_reach_us_and_telemetry_goes_to_the_ground() {
         sport: 40,
         flags: 0,
     };
-    let mut wire = [0u8; MAX_WIRE_FRAME];
-    let len = CspPacket::emit_kiss(&to_us, CspVersion::V1, b"cmd", &mut wire).unwrap();
     assert_eq!(
-        one_event(&mut n, &wire[..len]),
+        deliver(&mut n, &to_us, CspVersion::V1, b"cmd"),
         Some((None, b"cmd".to_vec()))
     );
     let elsewhere = CspHeader { dst: 11, ..to_us };
-    let len = CspPacket::emit_kiss(&elsewhere, CspVersion::V1, b"cmd", &mut wire).unwrap();
-    assert_eq!(one_event(&mut n, &wire[..len]), None);
+    assert_eq!(deliver(&mut n, &elsewhere, CspVersion::V1, b"cmd"), None);
     assert_eq!(n.counters().ignored, 1);
 
+    let mut wire = [0u8; MAX_WIRE_FRAME];
     let len = n.encode_telemetry(b"tm", &mut wire).unwrap();
     let mut dec = KissDecoder::<MAX_FRAME>::new();
     let mut input = &wire[..len];

@@ -32,14 +32,22 @@ fn mv(a: &M3, v: D3) -> D3 {
     [0, 1, 2].map(|i| (0..3).map(|k| a[i][k] * v[k]).sum())
 }
 
-fn rx(x: f64) -> M3 {
+/// Rotation by `x` rad about the coordinate axis `k` (0 = x, 2 = z).
+fn rot(k: usize, x: f64) -> M3 {
     let (s, c) = x.sin_cos();
-    [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]
+    let (i, j) = ((k + 1) % 3, (k + 2) % 3);
+    let mut m = [[0.0; 3]; 3];
+    m[k][k] = 1.0;
+    (m[i][i], m[i][j], m[j][i], m[j][j]) = (c, -s, s, c);
+    m
+}
+
+fn rx(x: f64) -> M3 {
+    rot(0, x)
 }
 
 fn rz(x: f64) -> M3 {
-    let (s, c) = x.sin_cos();
-    [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    rot(2, x)
 }
 
 /// exp of a rotation vector (Rodrigues).
