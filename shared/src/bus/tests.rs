@@ -149,14 +149,7 @@ fn a_v2_node_serves_commands_pings_and_telemetry() {
         ..BusConfig::DEFAULT
     };
     let mut n = BusNode::new(config);
-    let to_us = CspHeader {
-        prio: 2,
-        src: 12000,
-        dst: 5000,
-        dport: 11,
-        sport: 40,
-        flags: 0,
-    };
+    let to_us = command_header(12000, 5000);
     assert_eq!(
         deliver(&mut n, &to_us, CspVersion::V2, b"cmd"),
         Some((None, b"cmd".to_vec()))
@@ -200,6 +193,18 @@ fn crc_vectors() {
         [0xD9, 0x33, 0x1A, 0xA3]
     );
     assert_eq!(crate::crc::crc32c(&[0]), 0x527D_5351);
+}
+
+/// A command from `src` to `dst` (the default command port 11, from port 40).
+fn command_header(src: u16, dst: u16) -> CspHeader {
+    CspHeader {
+        prio: 2,
+        src,
+        dst,
+        dport: 11,
+        sport: 40,
+        flags: 0,
+    }
 }
 
 /// `payload` sent to `n` with header `h` in `version`: what `n` makes of it.
@@ -283,14 +288,7 @@ fn escaping_and_empty_payload_vectors() {
 #[test]
 fn commands_reach_us_and_telemetry_goes_to_the_ground() {
     let mut n = node();
-    let to_us = CspHeader {
-        prio: 2,
-        src: 1,
-        dst: 10,
-        dport: 11,
-        sport: 40,
-        flags: 0,
-    };
+    let to_us = command_header(1, 10);
     assert_eq!(
         deliver(&mut n, &to_us, CspVersion::V1, b"cmd"),
         Some((None, b"cmd".to_vec()))
@@ -408,7 +406,7 @@ proptest! {
         let _ = CspPacket::parse(&bytes, CspVersion::V1);
         let _ = CspPacket::parse(&bytes, CspVersion::V2);
         let mut wire = [0u8; MAX_WIRE_FRAME];
-        let h = CspHeader { prio: 2, src: 1, dst: 10, dport: 11, sport: 40, flags: 0 };
+        let h = command_header(1, 10);
         let len = CspPacket::emit_kiss(&h, CspVersion::V1, b"after", &mut wire).unwrap();
         prop_assert_eq!(one_event(&mut n, &wire[..len]), Some((None, b"after".to_vec())));
     }
