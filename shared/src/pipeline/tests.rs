@@ -3,6 +3,7 @@ use crate::calib::{AZ, board};
 use crate::telemetry::{CAL_CHUNK_MAX, encode};
 use crate::testutil::{Rng, rms};
 use crate::wire::FrameRepr;
+use crate::wire::clock::FPGA_BASE_RATE_MILLIHZ;
 use crate::wire::frame::RAW_PER_GROUP;
 
 extern crate std;
@@ -524,7 +525,7 @@ mod no_panic {
 #[test]
 fn arrival_times_keep_outages_the_sequence_counter_cannot_see() {
     // Frame period at N = 15: 16 / 9676.8 Hz = 1653.44 µs; output interval 32 frames.
-    let period_ns = 16.0e12 / 9_676_800.0;
+    let period_ns = 16.0e12 / FPGA_BASE_RATE_MILLIHZ as f64;
     let mut rng = Rng::new(9);
     let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
     let mut outputs = Vec::new();
@@ -721,7 +722,7 @@ fn set_time_correlates_frame_time_with_spacecraft_time() {
     let unix_us = 1_795_000_000_000_000u64;
     let out = command(&mut p, 1, Command::SetTime { unix_us });
     assert_eq!(ack(&out).result, Ok(()));
-    let t49 = 49 * 16 * 1_000_000_000 / 9_676_800;
+    let t49 = 49 * 16 * 1_000_000_000 / FPGA_BASE_RATE_MILLIHZ;
     let expected = TimeReport { t_us: t49, unix_us };
     assert_eq!(out[1], Output::Telemetry(Telemetry::Time(expected)));
     let out = run(&mut p, &stream(&frames[50..]));
@@ -766,7 +767,7 @@ fn nav_increments_of_a_steady_turn_with_lost_frames() {
         .collect();
     let fused = fused(&out);
     assert_eq!(nav.len(), fused.len());
-    let period_s = 16.0 / 9676.8;
+    let period_s = 16.0e3 / FPGA_BASE_RATE_MILLIHZ as f64;
     for (k, n) in nav.iter().enumerate() {
         assert_eq!(n.seq, fused[k].seq);
         let lost = if k == 1 { 3 } else { 0 };

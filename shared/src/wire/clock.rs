@@ -103,8 +103,24 @@ mod tests {
         let reference =
             |t: u64, r: u64| (u128::from(t) * 1_000_000_000 / u128::from(r.max(1))) as u64;
         let mut rng = crate::testutil::Rng::new(5);
-        let rates = [0, 1, 2, 9_676_800, (1 << 34) - 1, 1 << 34, u64::MAX];
-        let ticks = [0, 1, 17, 9_676_799, 9_676_800, u64::MAX - 1, u64::MAX];
+        let rates = [
+            0,
+            1,
+            2,
+            FPGA_BASE_RATE_MILLIHZ,
+            (1 << 34) - 1,
+            1 << 34,
+            u64::MAX,
+        ];
+        let ticks = [
+            0,
+            1,
+            17,
+            FPGA_BASE_RATE_MILLIHZ - 1,
+            FPGA_BASE_RATE_MILLIHZ,
+            u64::MAX - 1,
+            u64::MAX,
+        ];
         for (&t, &r) in ticks.iter().flat_map(|t| rates.iter().map(move |r| (t, r))) {
             assert_eq!(FrameClock::ticks_to_us(t, r), reference(t, r), "{t} {r}");
         }
