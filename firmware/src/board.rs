@@ -20,6 +20,8 @@
 //! does not start within ~100 ms the same 168 MHz comes from the 16 MHz HSI (±1 % over temperature) and the boot log
 //! says so (embassy's own RCC init would wait forever for the HSE).
 
+use core::cell::RefCell;
+use embassy_embedded_hal::flash::partition::BlockingPartition;
 use embassy_stm32::flash::{Bank1Region1, Blocking, Flash};
 use embassy_stm32::gpio::{Level, Output, Speed};
 use embassy_stm32::mode::Async;
@@ -32,10 +34,11 @@ use embassy_stm32::time::Hertz;
 use embassy_stm32::usart::{self, RingBufferedUartRx, Uart, UartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dma, peripherals};
+use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
-use static_cell::ConstStaticCell;
+use static_cell::{ConstStaticCell, StaticCell};
 
-use firmware::flash::FlashWindow;
 use firmware::layout::{
     BUS_RX_RING_LEN, CAL_FLASH_BASE, CAL_SECTOR_LEN, CAL_SECTORS, FPGA_RX_RING_LEN,
 };
@@ -72,7 +75,10 @@ pub type BusTx = UartTx<'static, Async>;
 /// The independent watchdog.
 pub type Watchdog = IndependentWatchdog<'static, IWDG>;
 /// `embedded_storage::nor_flash::NorFlash` over sectors 1 and 2 only.
-pub type CalibFlash = FlashWindow<Flash32>;
+pub type CalibFlash = BlockingPartition<'static, NoopRawMutex, Flash32>;
+
+/// Flash region 1 (sectors 0–3), shared by its partitions (today only the calibration slots).
+static FLASH_REGION1: StaticCell<BlockingMutex<NoopRawMutex, RefCell<Flash32>>> = StaticCell::new();
 /// Status LED: `embedded_hal::digital::OutputPin`.
 pub type Led = Output<'static>;
 
@@ -198,7 +204,9 @@ pub fn init() -> Board {
     let region1 = Flash::new_blocking(p.FLASH)
         .into_blocking_regions()
         .bank1_region1;
-    let calib = FlashWindow::new(Flash32(region1), CAL_FLASH_BASE - REGION1_BASE, CALIB_LEN);
+    let region1 = FLASH_REGION1.init(BlockingMutex::new(RefCell::new(Flash32(region1))));
+    // Sectors 1–2; the partition checks at boot that both ends are on sector boundaries.
+    let calib = BlockingPartition::new(region1, CAL_FLASH_BASE - REGION1_BASE, CALIB_LEN);
 
     let led = Output::new(p.PC13, Level::High, Speed::Low);
 

@@ -21,7 +21,6 @@ extern crate std;
 mod log;
 
 pub mod app;
-pub mod flash;
 pub mod layout;
 pub mod mcu_sensors;
 #[cfg(feature = "sim")]
