@@ -642,6 +642,28 @@ pub async fn watchdog_loop<B, L: OutputPin>(
     }
 }
 
+/// A PPS input: the time of each rising edge on the arrival clock (`Instant`, µs), the clock the link task stamps
+/// frames with (`Pipeline::set_arrival_us`).
+pub trait PpsInput {
+    /// Waits for the next edge; returns its time.
+    fn edge_us(&mut self) -> impl core::future::Future<Output = u64>;
+}
+
+/// Re-anchors spacecraft time on the whole second at each PPS edge (`Pipeline::pps`: edges before `SetTime`, off
+/// the second or doubled are refused and counted; the counters go out with every periodic Health).
+pub async fn pps_loop<B>(app: &App<B>, pps: &mut impl PpsInput) -> !
+where
+    B: core::borrow::BorrowMut<AllanBank>,
+{
+    loop {
+        let edge_us = pps.edge_us().await;
+        match app.pipeline.lock().await.pps(edge_us) {
+            Some(correction_us) => debug!("pps: time corrected by {:?} us", correction_us),
+            None => debug!("pps: edge at {:?} us refused", edge_us),
+        }
+    }
+}
+
 /// Housekeeping, every [`HOUSEKEEPING_PERIOD`]: a [`HousekeepingReport`] (boot facts, error counters by kind, the
 /// core's load from the cycle counter, the last calibration store); a Health report while the FPGA link delivers no
 /// frame (with frames, the pipeline sends Health every `health_every` outputs), so that the ground sees a silent

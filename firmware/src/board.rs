@@ -10,6 +10,7 @@
 //! | watchdog            | IWDG       | -                | LSI ≈ 32 kHz, 8 s                         |
 //! | calibration slots   | FLASH      | -                | sectors 1 (A) and 2 (B), 0x0800_4000, x32 erase |
 //! | time driver         | TIM5       | -                | embassy `time-driver-tim5`, 16 kHz tick   |
+//! | PPS in (optional)   | TIM2 CH1   | PA15 (AF1)       | input capture, rising edge, 32-bit counter at 1 MHz |
 //!
 //! The flash accelerator (prefetch, instruction and data caches), which `embassy_stm32::init` leaves off (its RCC
 //! init writes FLASH_ACR with the wait states only), is turned on here. Time: embassy's TIM5 driver counts 16-bit
@@ -23,7 +24,7 @@
 use core::cell::RefCell;
 use embassy_embedded_hal::flash::partition::BlockingPartition;
 use embassy_stm32::flash::{Bank1Region1, Blocking, Flash};
-use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_stm32::gpio::{Level, Output, Pull, Speed};
 use embassy_stm32::mode::Async;
 use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::rcc::{
@@ -31,6 +32,11 @@ use embassy_stm32::rcc::{
     Sysclk,
 };
 use embassy_stm32::time::Hertz;
+use embassy_stm32::timer::{
+    self,
+    input_capture::{CapturePin, InputCapture},
+    low_level::CountingMode,
+};
 use embassy_stm32::usart::{self, RingBufferedUartRx, Uart, UartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dma, peripherals};
@@ -46,6 +52,7 @@ use firmware::layout::{
 pub use firmware::layout::{BUS_BAUD, FPGA_BAUD};
 
 bind_interrupts!(pub struct Irqs {
+    TIM2 => timer::CaptureCompareInterruptHandler<peripherals::TIM2>;
     USART1 => usart::InterruptHandler<peripherals::USART1>;
     USART2 => usart::InterruptHandler<peripherals::USART2>;
     DMA1_STREAM5 => dma::InterruptHandler<peripherals::DMA1_CH5>;
@@ -102,6 +109,26 @@ pub struct Board {
     pub calib: CalibFlash,
     pub led: Led,
     pub cycles: firmware::app::CycleCounter,
+    pub pps: Pps,
+}
+
+/// The PPS input: TIM2 channel 1 captures the counter (1 MHz, 32 bits) at each rising edge on PA15; the edge's time
+/// on embassy's clock is "now" less the counter's count since the capture, read together (the 16 kHz tick limits
+/// it to 62.5 µs, far below a frame's read delay). An unconnected pin (pulled down) gives no edge.
+pub struct Pps(InputCapture<'static, peripherals::TIM2>);
+
+impl firmware::app::PpsInput for Pps {
+    async fn edge_us(&mut self) -> u64 {
+        let captured = self.0.wait_for_rising_edge(timer::Channel::Ch1).await;
+        let (count, now_us) = cortex_m::interrupt::free(|_| {
+            (
+                embassy_stm32::pac::TIM2.cnt().read(),
+                embassy_time::Instant::now().as_micros(),
+            )
+        });
+        // The 32-bit counter wraps after 71 minutes; the task reads it within milliseconds of the capture.
+        now_us.saturating_sub(u64::from(count.wrapping_sub(captured)))
+    }
 }
 
 /// ADC1 for the MCU's internal channels (temperature, VREFINT), shared with the housekeeping task.
@@ -226,6 +253,20 @@ pub fn init() -> Board {
         hz: SYSCLK_HZ,
     };
 
+    // PPS: TIM2 (32-bit, on APB1's 84 MHz timer clock) at 1 MHz, capture on rising edges of PA15.
+    let mut capture = InputCapture::new(
+        p.TIM2,
+        Some(CapturePin::new(p.PA15, Pull::Down)),
+        None,
+        None,
+        None,
+        Irqs,
+        Hertz(1_000_000),
+        CountingMode::EdgeAlignedUp,
+    );
+    capture.enable(timer::Channel::Ch1);
+    let pps = Pps(capture);
+
     Board {
         clock,
         fpga_rx,
@@ -236,6 +277,7 @@ pub fn init() -> Board {
         calib,
         led,
         cycles,
+        pps,
     }
 }
 

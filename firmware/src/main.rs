@@ -77,6 +77,7 @@ async fn main(spawner: Spawner) {
     spawner.spawn(defmt::unwrap!(bus_tx(app, b.bus_tx)));
     spawner.spawn(defmt::unwrap!(storage(app, store)));
     spawner.spawn(defmt::unwrap!(housekeeping(app)));
+    spawner.spawn(defmt::unwrap!(pps(app, b.pps)));
 }
 
 #[embassy_executor::task]
@@ -113,4 +114,9 @@ async fn watchdog(app: &'static FwApp, mut wdt: board::Watchdog, mut led: board:
 #[embassy_executor::task]
 async fn housekeeping(app: &'static FwApp) {
     app::housekeeping_loop(app, LOG_EVERY).await
+}
+
+#[embassy_executor::task]
+async fn pps(app: &'static FwApp, mut pps: board::Pps) {
+    app::pps_loop(app, &mut pps).await
 }

@@ -707,3 +707,76 @@ fn set_time_puts_the_reports_on_spacecraft_time() {
     );
     assert!(worst_us <= 10_000, "{worst_us} µs");
 }
+
+/// PPS (issue 15): a `SetTime` 40 ms wrong puts the reports 40 ms off; the edges of the following whole seconds
+/// re-anchor the time on them, so that the reports mapped after the first edge are within a frame's read delay of
+/// the truth; an edge in mid-second is refused and counted.
+#[test]
+fn pps_edges_put_the_reports_on_the_whole_second() {
+    let log = frames(5 * 605);
+    let mut sat = Sat::fresh();
+    let mut ground = Ground::new();
+    let period = frame_period();
+    // Spacecraft time when the first frame arrived (virtual time 0), not on a whole second.
+    let unix_at_start_us = 1_795_000_000_123_456u64;
+    let (first_edge_s, edges) = (unix_at_start_us / 1_000_000 + 2, 3);
+    let report = sat.run(MINUTE, async |app, board| {
+        let fpga = firmware::sim::node::fpga_play(board, &log, period);
+        let ground_side = async {
+            Timer::after(Duration::from_millis(1234)).await;
+            let now_us = Instant::now().as_micros();
+            let unix_us = unix_at_start_us + now_us + 40_000;
+            let ack = ground
+                .transact(board, 1, Command::SetTime { unix_us })
+                .await;
+            assert_eq!(ack.result, Ok(()));
+        };
+        let pps_side = async {
+            for s in first_edge_s..first_edge_s + edges {
+                Timer::at(Instant::from_micros(s * 1_000_000 - unix_at_start_us)).await;
+                board.pps_edge();
+            }
+            // A glitch in mid-second.
+            Timer::after(Duration::from_millis(500)).await;
+            board.pps_edge();
+        };
+        embassy_futures::join::join3(fpga, ground_side, pps_side).await;
+        Timer::after(Duration::from_millis(100)).await;
+        ground.receive(board);
+        app.pipeline.lock().await.pps_report()
+    });
+    assert_eq!((report.accepted, report.rejected), (edges as u32, 1));
+    let log =
+        host_test::formats::telemetry::TelemetryLog::decode(&ground.bytes, &BusConfig::DEFAULT);
+    let error_us = |t_us: u64, unix_us: u64| unix_us as i64 - (unix_at_start_us + t_us) as i64;
+    let first_edge_t_us = first_edge_s * 1_000_000 - unix_at_start_us;
+    let (mut before, mut after) = (Vec::new(), Vec::new());
+    for (r, unix_us) in log.fused_with_unix_us() {
+        if let Some(u) = unix_us {
+            // Reports whose mapping came from a Time report sent after the first edge (a Health period later).
+            if r.t_us > first_edge_t_us + 1_200_000 {
+                after.push(error_us(r.t_us, u));
+            } else {
+                before.push(error_us(r.t_us, u));
+            }
+        }
+    }
+    let worst = |v: &[i64]| v.iter().map(|e| e.abs()).max().unwrap_or(0);
+    eprintln!(
+        "PPS: {} reports after SetTime, worst {} µs; {} after the edges, worst {} µs",
+        before.len(),
+        worst(&before),
+        after.len(),
+        worst(&after)
+    );
+    assert!(
+        before.iter().any(|e| e.abs() > 30_000),
+        "SetTime's 40 ms error shows"
+    );
+    assert!(after.len() > 20, "{} reports after the edges", after.len());
+    assert!(
+        worst(&after) <= 3_000,
+        "{} µs after the edges",
+        worst(&after)
+    );
+}

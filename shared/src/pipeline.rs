@@ -27,7 +27,7 @@ use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, HealthMask, di
 use crate::nav::NavIntegrator;
 use crate::telemetry::{
     Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, FusedReport,
-    HealthReport, Mode, NavReport, Reject, Telemetry, TimeReport, decode, peek_tag,
+    HealthReport, Mode, NavReport, PpsReport, Reject, Telemetry, TimeReport, decode, peek_tag,
 };
 use crate::wire::frame::{FRAME_LEN, GROUPS};
 use crate::wire::{Decoded, FpgaControl, FrameClock, FrameDecoder, LinkCounters};
@@ -42,9 +42,12 @@ pub const FUSED_CHANNEL0: usize = SENSOR_CHANNELS;
 pub const ALLAN_CHANNELS: usize = SENSOR_CHANNELS + AXES;
 /// Outputs the pipeline can hold before the caller polls.
 pub const OUTBOX_LEN: usize = 16;
-/// Most outputs one frame can produce (fused, navigation, health and time reports); `push_link` keeps this much
+/// Most outputs one frame can produce (fused, navigation, health, time and PPS reports); `push_link` keeps this much
 /// room.
-const OUTPUTS_PER_FRAME: usize = 4;
+const OUTPUTS_PER_FRAME: usize = 5;
+/// A PPS edge is accepted only within this distance of a whole second of the current spacecraft time: it absorbs
+/// the `SetTime` latency (the first edge) and the frame clock's drift over a second, and refuses glitches.
+pub const PPS_TOLERANCE_US: u64 = 100_000;
 /// Longest accepted calibration upload (an encoded 16-group table).
 pub const CAL_UPLOAD_MAX: usize = encoded_len_max(GROUPS);
 /// Longest output interval, frames.
@@ -284,6 +287,12 @@ pub struct Pipeline<B> {
     nav_clipped: u16,
     /// Spacecraft time minus frame time, µs (wrapping), once `SetTime` was received.
     time_epoch_us: Option<u64>,
+    /// Smallest arrival time minus frame time, µs, since the last accepted PPS edge: the frame clock in the arrival
+    /// clock's scale, read at the frames that waited least (a read's last frame).
+    arrival_lead_us: Option<i64>,
+    /// Arrival time of the last accepted PPS edge.
+    pps_last_us: Option<u64>,
+    pps: PpsReport,
     invalid_frames: u32,
     telemetry_dropped: u32,
     commands: [u32; 2],
@@ -331,6 +340,13 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             mode: Mode::Stream,
             last_t_us: None,
             time_epoch_us: None,
+            arrival_lead_us: None,
+            pps_last_us: None,
+            pps: PpsReport {
+                accepted: 0,
+                rejected: 0,
+                last_correction_us: 0,
+            },
             nav: NavIntegrator::new(),
             nav_start_ticks: None,
             nav_clipped: 0,
@@ -662,6 +678,11 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             .push_parts(axes.as_flattened(), &self.fused_hold);
 
         self.last_t_us = Some(t_us);
+        if let Some(arrival) = self.arrival_us {
+            // Both < 2⁶³ µs in practice; wrapping keeps the difference exact modulo 2⁶⁴ either way.
+            let lead = arrival.wrapping_sub(t_us) as i64;
+            self.arrival_lead_us = Some(self.arrival_lead_us.map_or(lead, |m| m.min(lead)));
+        }
         self.avg.add(&fused, f.temp_cdeg, t_us);
         self.last = fused;
         if self.avg.frames >= self.config.frames_per_output.max(1) {
@@ -739,11 +760,73 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         self.push(Output::Telemetry(Telemetry::Nav(report)));
     }
 
-    /// A [`TimeReport`] after the time was set: the last frame's time on both scales.
+    /// A [`TimeReport`] after the time was set: the last frame's time on both scales; and the PPS counters once an
+    /// edge was seen.
     fn push_time(&mut self) {
         if let Some(r) = self.time_report() {
             self.push(Output::Telemetry(Telemetry::Time(r)));
         }
+        if self.pps.accepted > 0 || self.pps.rejected > 0 {
+            self.push(Output::Telemetry(Telemetry::Pps(self.pps)));
+        }
+    }
+
+    /// A PPS edge at `edge_us` on the arrival clock ([`Self::set_arrival_us`]'s): the spacecraft's whole second.
+    /// The frame time at the edge is `edge_us` minus the smallest arrival lead of the frames since the last accepted
+    /// edge (frames are stamped when read, never before they exist, so the least-delayed one is the best measure of
+    /// the clocks' offset); if the spacecraft time there is within [`PPS_TOLERANCE_US`] of a whole second, the time
+    /// is re-anchored on that second. Returns the correction, µs; `None` if the edge was refused (counted).
+    pub fn pps(&mut self, edge_us: u64) -> Option<i64> {
+        let accepted = self.pps_correction(edge_us);
+        match accepted {
+            Some((epoch, correction)) => {
+                self.time_epoch_us = Some(epoch);
+                self.arrival_lead_us = None;
+                self.pps_last_us = Some(edge_us);
+                self.pps.accepted = self.pps.accepted.wrapping_add(1);
+                self.pps.last_correction_us = i32::try_from(correction)
+                    .unwrap_or(if correction < 0 { i32::MIN } else { i32::MAX });
+                Some(correction)
+            }
+            None => {
+                self.pps.rejected = self.pps.rejected.wrapping_add(1);
+                None
+            }
+        }
+    }
+
+    /// The new epoch and the correction for an edge at `edge_us`, if it is accepted (see [`Self::pps`]).
+    fn pps_correction(&self, edge_us: u64) -> Option<(u64, i64)> {
+        const SECOND_US: u64 = 1_000_000;
+        let (epoch, lead) = (self.time_epoch_us?, self.arrival_lead_us?);
+        if self
+            .pps_last_us
+            .is_some_and(|last| edge_us.wrapping_sub(last) < SECOND_US / 2)
+        {
+            return None;
+        }
+        // Wrapping: every quantity is a time in µs modulo 2⁶⁴ (the epoch is a difference of two such times).
+        let frame_us = edge_us.wrapping_sub(lead as u64);
+        let spacecraft_us = frame_us.wrapping_add(epoch);
+        // The nearest whole second (spacecraft_us < 2⁶³ for any date: no wrap).
+        let rounded = spacecraft_us.saturating_add(SECOND_US / 2);
+        let second = rounded.wrapping_sub(rounded % SECOND_US);
+        let correction = second.abs_diff(spacecraft_us);
+        if correction > PPS_TOLERANCE_US {
+            return None;
+        }
+        // correction ≤ PPS_TOLERANCE_US < 2⁶³: the cast is exact.
+        let signed = if second >= spacecraft_us {
+            correction as i64
+        } else {
+            (correction as i64).wrapping_neg()
+        };
+        Some((second.wrapping_sub(frame_us), signed))
+    }
+
+    /// The PPS discipline's counters.
+    pub fn pps_report(&self) -> PpsReport {
+        self.pps
     }
 
     /// The correlation of frame time and spacecraft time, once `SetTime` was received.

@@ -263,6 +263,20 @@ pub enum Telemetry {
     Time(TimeReport),
     /// Navigation increments of one output interval (appended), after its `Fused` report.
     Nav(NavReport),
+    /// PPS discipline counters (appended), with every periodic Health once a PPS edge was seen.
+    Pps(PpsReport),
+}
+
+/// The PPS discipline (`Pipeline::pps`): spacecraft time re-anchored on the whole second at each accepted edge.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PpsReport {
+    /// Edges that re-anchored the time.
+    pub accepted: u32,
+    /// Edges refused: before `SetTime` or before any frame, farther than the tolerance from a whole second, or
+    /// sooner than half a second after the last accepted one.
+    pub rejected: u32,
+    /// Correction applied at the last accepted edge, µs (spacecraft time after minus before), saturated.
+    pub last_correction_us: i32,
 }
 
 /// The angle and velocity increments of one output interval (`shared::nav`: coning and sculling corrected),

@@ -4,7 +4,9 @@
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
-use embassy_futures::join::{join, join4};
+use embassy_futures::join::{join, join3, join4};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_storage::nor_flash::NorFlash;
 use shared::pipeline::AllanBank;
@@ -50,6 +52,17 @@ pub struct Board {
     pub bus_baud: Option<u32>,
     /// Times the watchdog was fed.
     pub watchdog_feeds: AtomicU32,
+    /// PPS edges, as the flight board's input capture reports them (time on embassy's clock, µs).
+    pub pps: Channel<CriticalSectionRawMutex, u64, 4>,
+}
+
+/// The simulated PPS input: edges sent with [`Board::pps_edge`].
+pub struct SimPps<'a>(&'a Channel<CriticalSectionRawMutex, u64, 4>);
+
+impl app::PpsInput for SimPps<'_> {
+    async fn edge_us(&mut self) -> u64 {
+        self.0.receive().await
+    }
 }
 
 impl Board {
@@ -67,7 +80,13 @@ impl Board {
             bus_tx: Line::new(1 << 20),
             bus_baud,
             watchdog_feeds: AtomicU32::new(0),
+            pps: Channel::new(),
         }
+    }
+
+    /// A PPS edge now (dropped if the firmware has not taken the last four).
+    pub fn pps_edge(&self) {
+        let _ = self.pps.try_send(Instant::now().as_micros());
     }
 
     /// Times the watchdog was fed so far.
@@ -94,6 +113,7 @@ where
     let mut bus_rx = board.bus_rx.rx();
     let mut bus_tx = board.bus_tx.writer(board.bus_baud);
     let mut led = NoPin;
+    let mut pps = SimPps(&board.pps);
     let feed = || {
         board.watchdog_feeds.fetch_add(1, Ordering::Relaxed);
     };
@@ -104,12 +124,13 @@ where
             app::bus_tx_loop(app, &mut bus_tx),
             app::fpga_ctrl_loop(app, &mut fpga_tx),
         ),
-        join(
+        join3(
             join(
                 app::storage_loop(app, store),
                 app::watchdog_loop(app, WATCHDOG_PERIOD, feed, &mut led),
             ),
             app::housekeeping_loop(app, 10),
+            app::pps_loop(app, &mut pps),
         ),
     )
     .await;

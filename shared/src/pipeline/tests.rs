@@ -802,3 +802,89 @@ fn nav_increments_of_a_steady_turn_with_lost_frames() {
         assert!(dv[0].abs() < 3e-5, "{k}: {dv:?}");
     }
 }
+
+/// PPS discipline: frames stamped on arrival (reads of 4 frames, each read up to 4 frame periods after its first
+/// frame), a `SetTime` 37 ms wrong, then edges at the spacecraft's whole seconds: the first edge corrects the
+/// time to the true second within the least read delay, later ones hold it there while the frame clock runs 40 ppm
+/// fast; edges before `SetTime`, off the second or doubled are refused and counted.
+#[test]
+fn pps_edges_anchor_spacecraft_time_on_the_whole_second() {
+    // True scales: spacecraft = frame + EPOCH (µs); arrival clock = frame + ARRIVAL_OFFSET + read delay. The FPGA
+    // clock runs 40 ppm fast against the spacecraft's (frame time advances 1.00004 µs per spacecraft µs).
+    const EPOCH: u64 = 1_795_000_000_123_456;
+    const ARRIVAL_OFFSET: u64 = 7_000_000;
+    let period_us = 16.0e9 / FPGA_BASE_RATE_MILLIHZ as f64;
+    let frame_us = |k: u64| (k as f64 * period_us) as u64;
+    let spacecraft_of_frame = |t: u64| EPOCH + (t as f64 / 1.000_04) as u64;
+    let mut rng = Rng::new(21);
+    let mut p = Pipeline::new_boxed(PipelineConfig {
+        health_every: 1,
+        ..PipelineConfig::DEFAULT
+    });
+    let mut k = 0u64;
+    // Frames up to spacecraft time `until`, read 4 at a time: the read happens 1.2 frame periods after its last
+    // frame, so the least delay is 1.2 periods (≈ 2 ms).
+    let feed_until = |p: &mut HostPipeline, until: u64, k: &mut u64, rng: &mut Rng| {
+        while spacecraft_of_frame(frame_us(*k + 4)) < until {
+            p.set_arrival_us(frame_us(*k + 3) + ARRIVAL_OFFSET + (1.2 * period_us) as u64);
+            let fs: Vec<FrameRepr> = (*k..*k + 4)
+                .map(|i| frame(i as u16, 15, [0.0; 3], [0.0, 0.0, -1.0], 20.0, rng))
+                .collect();
+            run(p, &stream(&fs));
+            *k += 4;
+        }
+    };
+    // The edge of spacecraft second `s`, on the arrival clock.
+    let edge = |s: u64| {
+        let t = ((s - EPOCH) as f64 * 1.000_04) as u64;
+        t + ARRIVAL_OFFSET
+    };
+    let first = EPOCH / 1_000_000 + 1;
+    feed_until(&mut p, first * 1_000_000 - 300_000, &mut k, &mut rng);
+    assert_eq!(p.pps(edge(first * 1_000_000)), None, "no time yet");
+    // SetTime, 37 ms late.
+    let t_last = frame_us(k - 1);
+    let wrong = spacecraft_of_frame(t_last) + 37_000;
+    command(&mut p, 1, Command::SetTime { unix_us: wrong });
+    for s in first + 1..first + 6 {
+        feed_until(&mut p, s * 1_000_000, &mut k, &mut rng);
+        let correction = p.pps(edge(s * 1_000_000)).expect("an edge on the second");
+        if s == first + 1 {
+            // The 37 ms error, less the least read delay (≈ 2 ms) the estimate keeps.
+            assert!((-37_000..=-34_000).contains(&correction), "{correction}");
+        } else {
+            // 40 ppm of drift per second, and the read delay's scatter.
+            assert!(correction.abs() <= 200, "{correction}");
+        }
+        let r = p.time_report().unwrap();
+        let error = r.unix_us as i64 - spacecraft_of_frame(r.t_us) as i64;
+        // The least read delay (1.2 frame periods, 2 ms) makes the frame time at the edge look earlier than it is:
+        // the anchored time runs late by that delay at most, never early.
+        assert!(
+            (0..=2_100).contains(&error),
+            "second {s}: time off by {error} µs"
+        );
+    }
+    let accepted = p.pps_report().accepted;
+    assert_eq!(accepted, 5);
+    // A doubled edge 0.3 s later, and one 0.4 s off the second, are refused.
+    let s = first + 6;
+    feed_until(&mut p, s * 1_000_000, &mut k, &mut rng);
+    assert!(p.pps(edge(s * 1_000_000)).is_some());
+    assert_eq!(p.pps(edge(s * 1_000_000 + 300_000)), None);
+    feed_until(&mut p, s * 1_000_000 + 700_000, &mut k, &mut rng);
+    assert_eq!(p.pps(edge(s * 1_000_000 + 600_000)), None);
+    let report = p.pps_report();
+    assert_eq!((report.accepted, report.rejected), (6, 3));
+    // On the bus with every periodic Health, after the Time report.
+    let fs: Vec<FrameRepr> = (k..k + 32)
+        .map(|i| frame(i as u16, 15, [0.0; 3], [0.0, 0.0, -1.0], 20.0, &mut rng))
+        .collect();
+    let out = run(&mut p, &stream(&fs));
+    let at = out
+        .iter()
+        .position(|o| matches!(o, Output::Telemetry(Telemetry::Pps(_))))
+        .expect("a PPS report");
+    assert!(matches!(out[at - 1], Output::Telemetry(Telemetry::Time(_))));
+    assert_eq!(out[at], Output::Telemetry(Telemetry::Pps(report)));
+}
