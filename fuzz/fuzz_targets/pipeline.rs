@@ -7,6 +7,7 @@
 //! * never panics (overflow checks on);
 //! * the link counters and the health report's counters (commands accepted/refused, invalid frames, dropped
 //!   telemetry) never decrease (no wrap is reachable in one run);
+//! * every PPS edge is counted once, as accepted or refused;
 //! * every command is acknowledged: an ack with its tag is queued before anything else it produced (a commit's
 //!   after the platform's store);
 //! * a complete, correct upload of a valid table is accepted: the table is in force, its source is `Uploaded`
@@ -101,6 +102,10 @@ enum Op {
     Dump(u8),
     Overruns(u16),
     Uptime(u64),
+    /// Arrival stamp for the frames that follow (`set_arrival_us`).
+    Arrival(u64),
+    /// A PPS edge (`pps`): arbitrary times, before or after `SetTime`.
+    Pps(u64),
 }
 
 #[derive(Arbitrary, Debug)]
@@ -311,6 +316,18 @@ fn check(input: Input) {
             }
             Op::Overruns(n) => run.p.note_link_overruns(u32::from(*n)),
             Op::Uptime(ms) => run.p.set_uptime_ms(*ms),
+            Op::Arrival(us) => run.p.set_arrival_us(*us),
+            Op::Pps(us) => {
+                let before = run.p.pps_report();
+                let accepted = run.p.pps(*us).is_some();
+                let after = run.p.pps_report();
+                // Every edge is counted once, as accepted or refused.
+                let expected = (
+                    before.accepted.wrapping_add(u32::from(accepted)),
+                    before.rejected.wrapping_add(u32::from(!accepted)),
+                );
+                assert_eq!((after.accepted, after.rejected), expected);
+            }
         }
         run.check_monotonic();
     }
