@@ -119,7 +119,7 @@ fn affine<const N: usize>(m: &[[i32; N]; 3], b: &[i32; N], raw: &[i32; N]) -> [i
             acc.wrapping_add(i64::from(mij).wrapping_mul(i64::from(dj)))
         })
     };
-    // Three named rows rather than `m.map(..)`, which copies the rows first at the firmware's opt-level "s".
+    // Three named rows rather than `m.map(..)`, which copied the rows first (measured at opt-level "s").
     let [r0, r1, r2] = m;
     [
         round_q24_sat(dot(r0)),

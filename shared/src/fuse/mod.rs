@@ -239,7 +239,7 @@ impl<const G: usize> Fusion<G> {
     /// Changes the parameters; the noise estimates are kept (their current blocks are folded in first, so that no
     /// block outlasts a `weight_interval`).
     pub fn set_config(&mut self, config: FusionConfig) {
-        let shift = u32::from(self.config.noise_shift.min(31));
+        let shift = self.config.noise_shift;
         self.axes.iter_mut().for_each(|a| a.fold(shift));
         self.config = config;
     }
@@ -383,7 +383,7 @@ impl<const G: usize> Fusion<G> {
         if n == 0 {
             state.resid_valid = 0;
             if fold {
-                state.fold(u32::from(self.config.noise_shift.min(31)));
+                state.fold(self.config.noise_shift);
             }
             return (0, 0, 0, 0);
         }
@@ -428,7 +428,6 @@ impl<const G: usize> Fusion<G> {
 
         // Noise estimates of the sensors used: a difference where the sensor was also used in the previous sample.
         // Branch-free over all groups (the usual case uses them all).
-        let shift = u32::from(self.config.noise_shift.min(31));
         let diffs = state.resid_valid & used;
         for (g, (e, &v)) in state.est.iter_mut().zip(x).enumerate() {
             // = (x − median) clamped to i32
@@ -447,7 +446,7 @@ impl<const G: usize> Fusion<G> {
         state.resid_valid = used;
         let weighted_mode = self.config.mode == FusionMode::InverseVariance;
         if fold {
-            state.fold(shift);
+            state.fold(self.config.noise_shift);
         }
         // Whether every used estimate has settled matters only for weighted means.
         let all_settled = weighted_mode && used & !state.settled == 0;

@@ -15,7 +15,7 @@ const _: () = assert!(VAR_LIMIT_ROOT * VAR_LIMIT_ROOT / 2 == VAR_LIMIT);
 /// by the fraction `n / 2^shift` of the way (n = the block's differences, at most the whole way), which weighs every
 /// difference as a per-sample average over 2^shift samples would, to first order. The per-sample average cost
 /// 64 Cortex-M4 instructions per sensor axis (a 64-bit subtraction, a run-time 64-bit shift, a saturating counter),
-/// this 20.
+/// this 26 (the loop included).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct NoiseEst {
     /// Exponential average of Δr²/2, (output unit)², ≤ [`VAR_LIMIT`].
@@ -78,9 +78,11 @@ pub(super) struct AxisState<const G: usize> {
 }
 
 impl<const G: usize> AxisState<G> {
-    /// Ends every estimator's block (see [`NoiseEst`]) and updates `settled`.
-    pub(super) fn fold(&mut self, shift: u32) {
-        let settled_at = (1u32 << shift.min(31)).min(u32::from(u16::MAX));
+    /// Ends every estimator's block (see [`NoiseEst`]) with the configuration's `noise_shift` and updates
+    /// `settled`.
+    pub(super) fn fold(&mut self, noise_shift: u8) {
+        let shift = u32::from(noise_shift.min(31));
+        let settled_at = (1u32 << shift).min(u32::from(u16::MAX));
         let mut settled = 0;
         for (g, e) in self.est.iter_mut().enumerate() {
             e.fold(shift);
