@@ -58,6 +58,7 @@ fn main() {
         used: [16; 6],
         health: Default::default(),
         temp_cdeg: Some(2150),
+        unix_us: Some(1_795_996_800_000_000),
     });
     let health = Telemetry::Health(HealthReport {
         uptime_ms: 123_456,

@@ -190,7 +190,8 @@ impl Averager {
         }
     }
 
-    fn report(&self, seq: u32) -> FusedReport {
+    /// The interval's report; `epoch_us` maps frame time to spacecraft time (`None`: not set).
+    fn report(&self, seq: u32, epoch_us: Option<u64>) -> FusedReport {
         let mut mean = [0i32; AXES];
         let mut used = [0u8; AXES];
         for ((((m, u), &sum), &valid), &used_min) in mean
@@ -215,6 +216,8 @@ impl Averager {
             health: self.health,
             temp_cdeg: (self.temp_n > 0)
                 .then(|| div_round(i64::from(self.temp_sum), i64::from(self.temp_n)) as i16),
+            // Wrapping as in `Pipeline::time_report`: the epoch is a difference of two times modulo 2⁶⁴.
+            unix_us: epoch_us.map(|e| self.t_us.wrapping_add(e)),
         }
     }
 }
@@ -687,7 +690,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         self.avg.add(&fused, f.temp_cdeg, t_us);
         self.last = fused;
         if self.avg.frames >= self.config.frames_per_output.max(1) {
-            let report = self.avg.report(self.out_seq);
+            let report = self.avg.report(self.out_seq, self.time_epoch_us);
             self.out_seq = self.out_seq.wrapping_add(1);
             self.avg = Averager::NEW;
             self.push(Output::Telemetry(Telemetry::Fused(report)));

@@ -11,8 +11,9 @@ use crate::fuse::{FaultCounts, FusionMode, HealthMask};
 use crate::wire::LinkCounters;
 use serde::{Deserialize, Serialize, de::DeserializeOwned};
 
-/// Version of the message set; the first byte of every message.
-pub const PROTOCOL_VERSION: u8 = 1;
+/// Version of the message set; the first byte of every message. 2: `FusedReport::unix_us` (spacecraft time in every
+/// fused report once `SetTime` set it).
+pub const PROTOCOL_VERSION: u8 = 2;
 /// Largest calibration chunk in one command, bytes.
 pub const CAL_CHUNK_MAX: usize = 192;
 /// Largest encoded message, bytes (fits libcsp's default KISS MTU with room to spare).
@@ -37,6 +38,9 @@ pub struct FusedReport {
     pub health: HealthMask,
     /// Mean board temperature, 0.01 °C, when the frames carried it.
     pub temp_cdeg: Option<i16>,
+    /// Spacecraft time of the interval's first frame, µs since the Unix epoch: `t_us` mapped with the time set by
+    /// `SetTime` and disciplined by PPS edges, as it stood when the report was made; `None` before `SetTime`.
+    pub unix_us: Option<u64>,
 }
 
 impl FusedReport {
@@ -482,6 +486,7 @@ mod tests {
                     accel: mask,
                 },
                 temp_cdeg: Some(i16::MIN),
+                unix_us: Some(u64::MAX),
             }),
             Telemetry::Allan(AllanReport {
                 channel: u8::MAX,
@@ -598,7 +603,7 @@ mod tests {
 
     #[test]
     fn known_encoding() {
-        // version 1, tag 300 = varint AC 02, variant 1 (SetDecimation), 15.
+        // version 2, tag 300 = varint AC 02, variant 1 (SetDecimation), 15.
         let mut buf = [0u8; 16];
         let bytes = encode(
             &CommandEnvelope {
@@ -608,7 +613,7 @@ mod tests {
             &mut buf,
         )
         .unwrap();
-        assert_eq!(bytes, [1, 0xAC, 0x02, 1, 15]);
+        assert_eq!(bytes, [2, 0xAC, 0x02, 1, 15]);
         assert_eq!(peek_tag(bytes), 300);
     }
 
@@ -616,19 +621,19 @@ mod tests {
     fn typed_errors() {
         assert_eq!(decode::<CommandEnvelope>(&[]), Err(DecodeError::Empty));
         assert_eq!(
-            decode::<CommandEnvelope>(&[2, 0, 0]),
-            Err(DecodeError::Version(2))
-        );
+            decode::<CommandEnvelope>(&[1, 0, 0]),
+            Err(DecodeError::Version(1))
+        ); // the previous version
         assert_eq!(
-            decode::<CommandEnvelope>(&[1, 0, 0, 0]),
+            decode::<CommandEnvelope>(&[2, 0, 0, 0]),
             Err(DecodeError::Malformed)
         ); // trailing byte
         assert_eq!(
-            decode::<CommandEnvelope>(&[1, 0, 99]),
+            decode::<CommandEnvelope>(&[2, 0, 99]),
             Err(DecodeError::Malformed)
         ); // no such command
         let mut long = [0u8; 8];
-        long[..4].copy_from_slice(&[1, 0, 5, 200]); // CalChunk with a 200-byte vector announced
+        long[..4].copy_from_slice(&[2, 0, 5, 200]); // CalChunk with a 200-byte vector announced
         assert_eq!(
             decode::<CommandEnvelope>(&long),
             Err(DecodeError::Malformed)

@@ -122,29 +122,15 @@ impl TelemetryLog {
         })
     }
 
-    /// The fused reports in order, each with its spacecraft time (µs since the Unix epoch) by the latest
-    /// [`shared::telemetry::TimeReport`] before it (`None` before the first: the time was not set yet).
-    pub fn fused_with_unix_us(&self) -> impl Iterator<Item = (&FusedReport, Option<u64>)> {
-        let mut epoch: Option<u64> = None;
-        self.messages.iter().filter_map(move |m| match m {
-            Telemetry::Time(t) => {
-                epoch = Some(t.unix_us.wrapping_sub(t.t_us));
-                None
-            }
-            Telemetry::Fused(r) => Some((r, epoch.map(|e| r.t_us.wrapping_add(e)))),
-            _ => None,
-        })
-    }
-
     /// Writes the fused reports as CSV (µ°/s and µg as sent, plus used counts, fault masks, and the spacecraft time
-    /// `unix_us` once a `Time` report correlated it; empty before).
+    /// `unix_us` each report carries once `SetTime` set it; empty before).
     pub fn write_fused_csv(&self, out: &mut impl std::io::Write) -> std::io::Result<()> {
         writeln!(
             out,
             "seq,t_s,frames,gx_udps,gy_udps,gz_udps,ax_ug,ay_ug,az_ug,used_gx,used_gy,used_gz,used_ax,used_ay,used_az,\
              gyro_faults,accel_faults,temp_c,unix_us"
         )?;
-        for (r, unix_us) in self.fused_with_unix_us() {
+        for r in self.fused() {
             let (u, v) = (r.used, r.axes());
             writeln!(
                 out,
@@ -168,7 +154,7 @@ impl TelemetryLog {
                 r.health.accel.any(),
                 r.temp_cdeg
                     .map_or(String::new(), |t| format!("{}", f64::from(t) / 100.0)),
-                unix_us.map_or(String::new(), |t| t.to_string()),
+                r.unix_us.map_or(String::new(), |t| t.to_string()),
             )?;
         }
         Ok(())

@@ -1,6 +1,6 @@
 use super::*;
 use crate::calib::{AZ, board};
-use crate::telemetry::{CAL_CHUNK_MAX, encode};
+use crate::telemetry::{CAL_CHUNK_MAX, PROTOCOL_VERSION, encode};
 use crate::testutil::{Rng, rms};
 use crate::wire::FrameRepr;
 use crate::wire::clock::FPGA_BASE_RATE_MILLIHZ;
@@ -324,7 +324,7 @@ fn commands_are_acknowledged_or_rejected_with_a_reason() {
             result: Err(Reject::Version(9))
         })))
     );
-    p.handle_command(&[1, 6, 77]);
+    p.handle_command(&[PROTOCOL_VERSION, 6, 77]);
     assert_eq!(
         p.poll(),
         Some(Output::Telemetry(Telemetry::Ack(Ack {
@@ -704,7 +704,8 @@ fn mode_and_groups_excluded_by_hand() {
 }
 
 /// `SetTime` correlates frame time with spacecraft time: a `Time` report right after the ack and with every
-/// periodic Health, both naming the last frame's time on the two scales.
+/// periodic Health, both naming the last frame's time on the two scales; `Fused` reports carry no spacecraft time
+/// before, and their first frame's after.
 #[test]
 fn set_time_correlates_frame_time_with_spacecraft_time() {
     let mut rng = Rng::new(4);
@@ -717,7 +718,9 @@ fn set_time_correlates_frame_time_with_spacecraft_time() {
         ..PipelineConfig::DEFAULT
     });
     assert_eq!(p.time_report(), None);
-    run(&mut p, &stream(&frames[..50]));
+    let before = run(&mut p, &stream(&frames[..50]));
+    assert_eq!(fused(&before).len(), 5);
+    assert!(fused(&before).iter().all(|r| r.unix_us.is_none()));
     // Frame 49 is at 49 · 16 / 9676.8 Hz = 81 018.518… µs.
     let unix_us = 1_795_000_000_000_000u64;
     let out = command(&mut p, 1, Command::SetTime { unix_us });
@@ -741,6 +744,14 @@ fn set_time_correlates_frame_time_with_spacecraft_time() {
     assert!(!times.is_empty());
     for t in times {
         assert_eq!(t.unix_us - t.t_us, unix_us - t49, "one epoch");
+    }
+    let after = fused(&out);
+    assert_eq!(after.len(), 5);
+    for r in after {
+        // Frame k of the interval starting at frame 10·j is at 10·j · 16 / 9676.8 Hz.
+        let first = u64::from(r.seq) * 10 * 16 * 1_000_000_000 / FPGA_BASE_RATE_MILLIHZ;
+        assert_eq!(r.t_us, first);
+        assert_eq!(r.unix_us, Some(unix_us - t49 + first), "report {}", r.seq);
     }
 }
 
