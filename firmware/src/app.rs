@@ -169,13 +169,19 @@ pub struct BootInfo {
 /// Reads the MCU's (temperature in 0.01 °C, VDDA in mV); `None` when it cannot.
 pub type McuSensorReader = fn() -> Option<(i16, u16)>;
 
-/// A free-running CPU cycle counter (the DWT's on the MCU) and its rate, for the core's load.
+/// A free-running CPU cycle counter (the DWT's on the MCU), for the core's load; it counts at the core clock's
+/// rate, which [`CoreClock`] reports.
 #[derive(Debug, Clone, Copy)]
 pub struct CycleCounter {
     /// Reads the counter.
     pub now: fn() -> u32,
-    /// Cycles per second.
-    pub hz: u32,
+}
+
+/// The core clock: full speed while frames stream, lowered while the FPGA stream is stopped (`Mode::Idle`), with
+/// the peripherals' clocks unchanged (`board::CoreClock`).
+pub trait CoreClock {
+    /// Sets the low (`true`) or the full clock; returns the core clock's rate after, Hz.
+    fn set_low(&mut self, low: bool) -> u32;
 }
 
 /// The firmware's git commit (first 8 hex digits as a number; 0 outside git) and whether the tree was dirty, from
@@ -212,6 +218,8 @@ pub struct App<B> {
     mcu_sensors: Option<McuSensorReader>,
     /// Cycles the link task spent processing frames (wrapping).
     busy_cycles: AtomicU32,
+    /// The core clock's rate, Hz, as `fpga_ctrl_loop` last set it (0: not yet).
+    core_hz: AtomicU32,
 }
 
 impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
@@ -233,6 +241,7 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
             cycles: None,
             mcu_sensors: None,
             busy_cycles: AtomicU32::new(0),
+            core_hz: AtomicU32::new(0),
         }
     }
 
@@ -248,7 +257,7 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
         self
     }
 
-    /// With a cycle counter, for the core's load in housekeeping.
+    /// With a cycle counter, for the core's load in housekeeping (at the rate the [`CoreClock`] reports).
     pub fn with_cycle_counter(mut self, cycles: CycleCounter) -> Self {
         self.cycles = Some(cycles);
         self
@@ -329,6 +338,7 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
             cal_ram_repairs: c.cal_ram_repairs,
             mode: p.mode(),
             excluded: p.fusion().config().excluded,
+            core_clock_hz: Some(self.core_hz.load(Ordering::Relaxed)).filter(|&hz| hz > 0),
         }
     }
 
@@ -523,18 +533,32 @@ where
     }
 }
 
-/// Control messages to the FPGA.
-pub async fn fpga_ctrl_loop<B, W>(app: &App<B>, tx: &mut W) -> !
+/// Control messages to the FPGA, and the core clock that goes with the stream: full at boot and raised before a
+/// `SetStreaming(true)` goes out; lowered once a `SetStreaming(false)` has left the transmitter (the FPGA link's
+/// UART keeps its clock either way, but a message is not sent across the switch).
+pub async fn fpga_ctrl_loop<B, W>(app: &App<B>, tx: &mut W, clock: &mut impl CoreClock) -> !
 where
     W: Write,
     W::Error: Loggable,
 {
+    app.core_hz.store(clock.set_low(false), Ordering::Relaxed);
     loop {
         let msg = app.fpga.receive().await;
         info!("fpga: {:?}", msg);
-        if let Err(e) = tx.write_all(&msg.to_bytes()).await {
+        if msg == FpgaControl::SetStreaming(true) {
+            app.core_hz.store(clock.set_low(false), Ordering::Relaxed);
+        }
+        let sent = async {
+            tx.write_all(&msg.to_bytes()).await?;
+            tx.flush().await
+        };
+        if let Err(e) = sent.await {
             warn!("fpga: control tx error {:?}", e);
         }
+        if msg == FpgaControl::SetStreaming(false) {
+            app.core_hz.store(clock.set_low(true), Ordering::Relaxed);
+        }
+        info!("core clock: {:?} Hz", app.core_hz.load(Ordering::Relaxed));
     }
 }
 
@@ -694,12 +718,14 @@ where
         }
         // The core's load over the period, from the cycle counter (if the board has one).
         let busy = app.busy_cycles.load(Ordering::Relaxed);
-        let load = app.cycles.map(|c| {
+        // At the clock's rate now: a period across a clock switch is off by the switched part (one report).
+        let core_hz = app.core_hz.load(Ordering::Relaxed);
+        let load = app.cycles.map(|_| {
             let cycles = busy.wrapping_sub(last_busy);
             let period_cycles = now
                 .duration_since(last_at)
                 .as_micros()
-                .saturating_mul(u64::from(c.hz))
+                .saturating_mul(u64::from(core_hz))
                 / 1_000_000;
             let permille = u64::from(cycles).saturating_mul(1000)
                 / NonZeroU64::new(period_cycles).unwrap_or(NonZeroU64::MIN);

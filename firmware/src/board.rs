@@ -11,6 +11,7 @@
 //! | calibration slots   | FLASH      | -                | sectors 1 (A) and 2 (B), 0x0800_4000, x32 erase |
 //! | time driver         | TIM5       | -                | embassy `time-driver-tim5`, 16 kHz tick   |
 //! | PPS in (optional)   | TIM2 CH1   | PA15 (AF1)       | input capture, rising edge, 32-bit counter at 1 MHz |
+//! | core clock          | RCC        | -                | HCLK 168 MHz streaming, 84 MHz in Idle (`CoreClock`) |
 //!
 //! The flash accelerator (prefetch, instruction and data caches), which `embassy_stm32::init` leaves off (its RCC
 //! init writes FLASH_ACR with the wait states only), is turned on here. Time: embassy's TIM5 driver counts 16-bit
@@ -98,6 +99,44 @@ pub enum ClockSource {
     HsiFallback,
 }
 
+/// The core clock (`app::CoreClock`): HCLK = SYSCLK = 168 MHz, or 84 MHz in Idle through the AHB prescaler, with
+/// the APB prescalers halved with it so that every peripheral clock stays: PCLK1 42 MHz, PCLK2 84 MHz, the APB1
+/// timers' 84 MHz (TIM5 for embassy's time, TIM2 for the PPS), the ADC's 21 MHz. The UARTs' baud rates, the time
+/// and the capture therefore need no change; only APB2's timers (unused) go from 168 to 84 MHz. The PLL stays
+/// locked, so switching takes no settling time. RM0090 §7.3.3: the new AHB divisor takes effect 1–16 AHB cycles
+/// after the write; the order (AHB first going down, APB first going up) keeps PCLK1 ≤ 42 MHz and PCLK2 ≤ 84 MHz
+/// throughout, at the price of ≤ 0.3 µs at half the peripheral clock: a bit on the 115200-baud bus stretches by
+/// < 4 %, inside the receiver's tolerance. The flash keeps its 5 wait states (more than 84 MHz needs).
+pub struct CoreClock;
+
+impl firmware::app::CoreClock for CoreClock {
+    fn set_low(&mut self, low: bool) -> u32 {
+        use embassy_stm32::pac::RCC;
+        use embassy_stm32::pac::rcc::vals::{Hpre, Ppre};
+        cortex_m::interrupt::free(|_| {
+            if low {
+                RCC.cfgr().modify(|w| w.set_hpre(Hpre::DIV2));
+                RCC.cfgr().modify(|w| {
+                    w.set_ppre1(Ppre::DIV2);
+                    w.set_ppre2(Ppre::DIV1);
+                });
+            } else {
+                RCC.cfgr().modify(|w| {
+                    w.set_ppre1(Ppre::DIV4);
+                    w.set_ppre2(Ppre::DIV2);
+                });
+                RCC.cfgr().modify(|w| w.set_hpre(Hpre::DIV1));
+            }
+        });
+        // The rate the register now holds, not the one asked for.
+        match RCC.cfgr().read().hpre() {
+            Hpre::DIV1 => SYSCLK_HZ,
+            Hpre::DIV2 => SYSCLK_HZ / 2,
+            _ => 0,
+        }
+    }
+}
+
 /// Everything the application gets from the board.
 pub struct Board {
     pub clock: ClockSource,
@@ -109,6 +148,7 @@ pub struct Board {
     pub calib: CalibFlash,
     pub led: Led,
     pub cycles: firmware::app::CycleCounter,
+    pub core_clock: CoreClock,
     pub pps: Pps,
 }
 
@@ -250,7 +290,6 @@ pub fn init() -> Board {
     }
     let cycles = firmware::app::CycleCounter {
         now: cortex_m::peripheral::DWT::cycle_count,
-        hz: SYSCLK_HZ,
     };
 
     // PPS: TIM2 (32-bit, on APB1's 84 MHz timer clock) at 1 MHz, capture on rising edges of PA15.
@@ -277,6 +316,7 @@ pub fn init() -> Board {
         calib,
         led,
         cycles,
+        core_clock: CoreClock,
         pps,
     }
 }

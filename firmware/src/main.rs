@@ -72,7 +72,7 @@ async fn main(spawner: Spawner) {
 
     spawner.spawn(defmt::unwrap!(watchdog(app, b.watchdog, b.led)));
     spawner.spawn(defmt::unwrap!(fpga_link(app, b.fpga_rx)));
-    spawner.spawn(defmt::unwrap!(fpga_ctrl(app, b.fpga_tx)));
+    spawner.spawn(defmt::unwrap!(fpga_ctrl(app, b.fpga_tx, b.core_clock)));
     spawner.spawn(defmt::unwrap!(bus_rx(app, b.bus_rx)));
     spawner.spawn(defmt::unwrap!(bus_tx(app, b.bus_tx)));
     spawner.spawn(defmt::unwrap!(storage(app, store)));
@@ -86,8 +86,8 @@ async fn fpga_link(app: &'static FwApp, mut rx: board::FpgaRx) {
 }
 
 #[embassy_executor::task]
-async fn fpga_ctrl(app: &'static FwApp, mut tx: board::FpgaTx) {
-    app::fpga_ctrl_loop(app, &mut tx).await
+async fn fpga_ctrl(app: &'static FwApp, mut tx: board::FpgaTx, mut clock: board::CoreClock) {
+    app::fpga_ctrl_loop(app, &mut tx, &mut clock).await
 }
 
 #[embassy_executor::task]

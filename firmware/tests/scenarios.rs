@@ -451,6 +451,58 @@ fn a_silent_fpga_still_sends_health() {
     assert_eq!(fused(&ground.telemetry), 0);
 }
 
+/// `SetMode(Idle)` stops the FPGA stream and then lowers the core clock (84 MHz); `SetMode(Stream)` raises it
+/// (168 MHz) and restarts the stream; Housekeeping reports the mode and the clock all along.
+#[test]
+fn idle_stops_the_stream_and_lowers_the_core_clock() {
+    use shared::telemetry::{HousekeepingReport, Mode};
+    const FULL_HZ: u32 = firmware::sim::node::SimCoreClock::FULL_HZ;
+    let mut sat = Sat::fresh();
+    let mut ground = Ground::new();
+    let (clocks, fpga) = sat.run(MINUTE, async |_, board| {
+        Timer::after(Duration::from_millis(1500)).await;
+        let mut clocks = vec![board.core_hz.load(std::sync::atomic::Ordering::Relaxed)];
+        for (tag, mode) in [(1, Mode::Idle), (2, Mode::Stream)] {
+            let ack = ground.transact(board, tag, Command::SetMode(mode)).await;
+            assert_eq!(ack.result, Ok(()));
+            Timer::after(Duration::from_millis(2500)).await;
+            clocks.push(board.core_hz.load(std::sync::atomic::Ordering::Relaxed));
+        }
+        ground.receive(board);
+        (clocks, board.fpga_tx.take_all())
+    });
+    assert_eq!(
+        clocks,
+        [FULL_HZ, FULL_HZ / 2, FULL_HZ],
+        "after boot, idle, stream"
+    );
+    let expected: Vec<u8> = [false, true]
+        .into_iter()
+        .flat_map(|on| FpgaControl::SetStreaming(on).to_bytes())
+        .collect();
+    assert_eq!(fpga, expected);
+    let hk: Vec<HousekeepingReport> = ground
+        .telemetry
+        .iter()
+        .filter_map(|t| match t {
+            Telemetry::Housekeeping(h) => Some(*h),
+            _ => None,
+        })
+        .collect();
+    let seen: Vec<(Mode, Option<u32>)> = hk.iter().map(|h| (h.mode, h.core_clock_hz)).collect();
+    assert!(seen.len() >= 5, "{seen:?}");
+    assert!(seen.iter().all(|&(mode, hz)| hz
+        == Some(match mode {
+            Mode::Stream => FULL_HZ,
+            Mode::Idle => FULL_HZ / 2,
+        })));
+    assert!(
+        seen.iter().filter(|s| s.0 == Mode::Idle).count() >= 2,
+        "{seen:?}"
+    );
+    assert_eq!(seen.last().map(|s| s.0), Some(Mode::Stream), "{seen:?}");
+}
+
 /// A CSP ping to our address is answered with the same payload; a ping to another address is ignored.
 #[test]
 fn pings_are_echoed() {

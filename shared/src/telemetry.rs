@@ -202,6 +202,8 @@ pub struct HousekeepingReport {
     pub mode: Mode,
     /// Groups left out of the fusion by hand, `[gyro, accel]` bitmasks.
     pub excluded: [u32; 2],
+    /// The core clock's rate, Hz: full while streaming, lowered in `Mode::Idle` (`None`: not known yet).
+    pub core_clock_hz: Option<u32>,
 }
 
 /// Fault counters of one group (sent after a health request with `detail`).
@@ -559,6 +561,7 @@ mod tests {
                 cal_ram_repairs: u32::MAX,
                 mode: Mode::Idle,
                 excluded: [u32::MAX; 2],
+                core_clock_hz: Some(u32::MAX),
             }),
             Telemetry::Nav(NavReport {
                 seq: u32::MAX,

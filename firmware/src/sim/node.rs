@@ -54,6 +54,28 @@ pub struct Board {
     pub watchdog_feeds: AtomicU32,
     /// PPS edges, as the flight board's input capture reports them (time on embassy's clock, µs).
     pub pps: Channel<CriticalSectionRawMutex, u64, 4>,
+    /// The simulated core clock's rate, Hz (0 before the firmware set it).
+    pub core_hz: AtomicU32,
+}
+
+/// The simulated core clock: the flight board's two rates (`board::CoreClock`: HCLK 168 MHz, 84 MHz when low).
+pub struct SimCoreClock<'a>(&'a AtomicU32);
+
+impl SimCoreClock<'_> {
+    /// The full rate, Hz.
+    pub const FULL_HZ: u32 = 168_000_000;
+}
+
+impl app::CoreClock for SimCoreClock<'_> {
+    fn set_low(&mut self, low: bool) -> u32 {
+        let hz = if low {
+            Self::FULL_HZ / 2
+        } else {
+            Self::FULL_HZ
+        };
+        self.0.store(hz, Ordering::Relaxed);
+        hz
+    }
 }
 
 /// The simulated PPS input: edges sent with [`Board::pps_edge`].
@@ -81,6 +103,7 @@ impl Board {
             bus_baud,
             watchdog_feeds: AtomicU32::new(0),
             pps: Channel::new(),
+            core_hz: AtomicU32::new(0),
         }
     }
 
@@ -114,6 +137,7 @@ where
     let mut bus_tx = board.bus_tx.writer(board.bus_baud);
     let mut led = NoPin;
     let mut pps = SimPps(&board.pps);
+    let mut clock = SimCoreClock(&board.core_hz);
     let feed = || {
         board.watchdog_feeds.fetch_add(1, Ordering::Relaxed);
     };
@@ -122,7 +146,7 @@ where
             app::link_loop(app, &mut fpga_rx),
             app::bus_rx_loop(app, &mut bus_rx),
             app::bus_tx_loop(app, &mut bus_tx),
-            app::fpga_ctrl_loop(app, &mut fpga_tx),
+            app::fpga_ctrl_loop(app, &mut fpga_tx, &mut clock),
         ),
         join3(
             join(
