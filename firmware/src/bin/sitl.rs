@@ -27,7 +27,7 @@ use shared::bus::BusConfig;
 use shared::bus::csp::CspVersion;
 use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
 use shared::storage::CalStore;
-use shared::wire::{FrameClock, FrameDecoder};
+use shared::wire::FrameDecoder;
 
 /// Runs the firmware's tasks on the PC against a frame log and a serial bus.
 #[derive(Parser, Debug)]
@@ -165,9 +165,7 @@ async fn feed(board: &Board, frames: &[u8], fast: bool, base_rate_millihz: u64) 
         let n = FrameDecoder::new()
             .decode(&mut probe)
             .map_or(15, |d| d.frame.decimation);
-        // Frame period: N + 1 base ticks.
-        let period_us = FrameClock::ticks_to_us(u64::from(n) + 1, base_rate_millihz);
-        node::fpga_play(board, frames, Duration::from_micros(period_us)).await;
+        node::fpga_play(board, frames, n, base_rate_millihz).await;
     }
     log::info!("sitl: frame log ended; the FPGA link is silent now");
     core::future::pending::<()>().await

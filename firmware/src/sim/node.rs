@@ -11,6 +11,7 @@ use embassy_time::{Duration, Instant, Timer};
 use embedded_storage::nor_flash::NorFlash;
 use shared::pipeline::AllanBank;
 use shared::storage::CalStore;
+use shared::wire::FrameClock;
 use shared::wire::frame::FRAME_LEN;
 
 use super::NoPin;
@@ -22,12 +23,18 @@ use crate::log::Loggable;
 /// How often the watchdog loop checks progress (as `main.rs`).
 pub const WATCHDOG_PERIOD: Duration = Duration::from_millis(250);
 
-/// The FPGA sending `log` frame by frame, frame k at `period`·k from now, whether or not the firmware runs: after a
-/// CPU stall ([`super::clock::stall`]) every frame that came due meanwhile arrives at once, and what the ring cannot
-/// hold is lost, as on the MCU. Returns when the log is sent.
-pub async fn fpga_play(board: &Board, log: &[u8], period: Duration) {
+/// The FPGA sending `log` frame by frame at decimation N (a frame every N + 1 ticks of its base clock at
+/// `base_rate_millihz`), frame k at the frame clock's time of its k·(N + 1)-th tick from now (the time the pipeline
+/// gives it, to the µs, without a rounded period's drift), whether or not the firmware runs: after a CPU stall
+/// ([`super::clock::stall`]) every frame that came due meanwhile arrives at once, and what the ring cannot hold is
+/// lost, as on the MCU. Returns when the log is sent.
+pub async fn fpga_play(board: &Board, log: &[u8], decimation: u16, base_rate_millihz: u64) {
     let t0 = Instant::now();
-    let due = |k: usize| t0 + period * u32::try_from(k).unwrap_or(u32::MAX);
+    let ticks = u64::from(decimation).saturating_add(1);
+    let due = |k: usize| {
+        let k_ticks = u64::try_from(k).unwrap_or(u64::MAX).saturating_mul(ticks);
+        t0 + Duration::from_micros(FrameClock::ticks_to_us(k_ticks, base_rate_millihz))
+    };
     let mut frames = log.chunks(FRAME_LEN).enumerate().peekable();
     while let Some(&(k, _)) = frames.peek() {
         Timer::at(due(k)).await;

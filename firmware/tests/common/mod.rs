@@ -248,6 +248,12 @@ pub fn frames(n: usize) -> Vec<u8> {
     host_test::replay::synthetic_frames(n)
 }
 
+/// The FPGA playing `log` at the default decimation (N = 15) and base rate (`firmware::sim::node::fpga_play`).
+pub async fn fpga_play(board: &firmware::sim::node::Board, log: &[u8]) {
+    let rate = PipelineConfig::DEFAULT.fpga_base_rate_millihz;
+    firmware::sim::node::fpga_play(board, log, 15, rate).await
+}
+
 /// The frame period at the default decimation (N = 15), µs (exactly 1653.439… µs; rounded).
 pub fn frame_period() -> Duration {
     Duration::from_micros(shared::wire::FrameClock::ticks_to_us(
