@@ -40,6 +40,15 @@ pub struct Decoded {
     pub restarted: bool,
 }
 
+impl Decoded {
+    /// A slot for [`FrameDecoder::decode_into`].
+    pub const EMPTY: Self = Self {
+        frame: FrameRepr::EMPTY,
+        missing_before: 0,
+        restarted: false,
+    };
+}
+
 /// Streaming frame decoder (see the module documentation).
 #[derive(Clone, Debug)]
 pub struct FrameDecoder {
@@ -117,6 +126,14 @@ impl FrameDecoder {
     /// Call it again with the rest of `input` until it returns `None`; bytes are never consumed without being
     /// either buffered, counted as skipped, or returned as part of a frame.
     pub fn decode(&mut self, input: &mut &[u8]) -> Option<Decoded> {
+        let mut d = Decoded::EMPTY;
+        self.decode_into(input, &mut d).then_some(d)
+    }
+
+    /// [`Self::decode`] into the slot `out`: `true` when a frame was written there (`out` is unchanged otherwise).
+    /// The pipeline's path: the frame is parsed in place, never moved (on the Cortex-M4 each move of the 240-byte
+    /// `Decoded` is a `memcpy`).
+    pub fn decode_into(&mut self, input: &mut &[u8], out: &mut Decoded) -> bool {
         loop {
             if self.len == 0 {
                 let skip = sync_candidate(input);
@@ -125,14 +142,15 @@ impl FrameDecoder {
                     *input = input.get(skip..).unwrap_or(&[]);
                 }
                 if input.is_empty() {
-                    return None;
+                    return false;
                 }
                 if let Some(candidate) = input.first_chunk::<FRAME_LEN>() {
                     // Fast path: a whole frame in the caller's buffer, no copy.
-                    match FrameRepr::parse_bytes(candidate) {
-                        Ok(frame) => {
+                    match out.frame.parse_from_bytes(candidate) {
+                        Ok(()) => {
                             *input = input.get(FRAME_LEN..).unwrap_or(&[]);
-                            return Some(self.accept(frame));
+                            self.accept(out);
+                            return true;
                         }
                         Err(e) => {
                             self.reject(e);
@@ -144,13 +162,18 @@ impl FrameDecoder {
                 }
                 // A partial frame: keep it.
                 let n = input.len();
-                self.buf.get_mut(..n)?.copy_from_slice(input);
+                let Some(dst) = self.buf.get_mut(..n) else {
+                    return false;
+                };
+                dst.copy_from_slice(input);
                 self.len = n;
                 *input = &[];
-                return None;
+                return false;
             }
 
-            let free = self.buf.get_mut(self.len..)?;
+            let Some(free) = self.buf.get_mut(self.len..) else {
+                return false;
+            };
             let take = free.len().min(input.len());
             let (head, rest) = input.split_at(take);
             let (dst, _) = free.split_at_mut(take);
@@ -162,13 +185,14 @@ impl FrameDecoder {
                 // Drop an early mismatch of the marker at once rather than after a whole frame's worth of bytes.
                 if self.buf.get(..self.len.min(SYNC.len())) == SYNC.get(..self.len.min(SYNC.len()))
                 {
-                    return None;
+                    return false;
                 }
             } else {
-                match FrameRepr::parse_bytes(&self.buf) {
-                    Ok(frame) => {
+                match out.frame.parse_from_bytes(&self.buf) {
+                    Ok(()) => {
                         self.len = 0;
-                        return Some(self.accept(frame));
+                        self.accept(out);
+                        return true;
                     }
                     Err(e) => self.reject(e),
                 }
@@ -194,7 +218,9 @@ impl FrameDecoder {
         }
     }
 
-    fn accept(&mut self, frame: FrameRepr) -> Decoded {
+    /// Counts the frame parsed into `out` and fills in what its sequence counter says.
+    fn accept(&mut self, out: &mut Decoded) {
+        let seq = out.frame.seq;
         let c = &mut self.counters;
         c.frames = c.frames.wrapping_add(1);
         if self.skipped_since_lock {
@@ -203,7 +229,7 @@ impl FrameDecoder {
         }
         let (mut missing_before, mut restarted) = (0, false);
         if let Some(last) = self.last_seq {
-            let gap = frame.seq.wrapping_sub(last.wrapping_add(1));
+            let gap = seq.wrapping_sub(last.wrapping_add(1));
             if gap < 0x8000 {
                 missing_before = u32::from(gap);
                 c.frames_dropped = c.frames_dropped.wrapping_add(missing_before);
@@ -212,12 +238,8 @@ impl FrameDecoder {
                 restarted = true;
             }
         }
-        self.last_seq = Some(frame.seq);
-        Decoded {
-            frame,
-            missing_before,
-            restarted,
-        }
+        self.last_seq = Some(seq);
+        (out.missing_before, out.restarted) = (missing_before, restarted);
     }
 }
 

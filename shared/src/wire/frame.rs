@@ -178,19 +178,37 @@ pub struct FrameRepr {
 impl FrameRepr {
     /// Parses a checked view (sync and CRC verified here).
     pub fn parse<T: AsRef<[u8]>>(frame: &Frame<T>) -> Result<Self, WireError> {
+        let mut repr = Self::EMPTY;
+        repr.parse_from(frame)?;
+        Ok(repr)
+    }
+
+    /// A frame of zeros (sequence 0, decimation 0, no temperature): a slot for [`Self::parse_from`].
+    pub const EMPTY: Self = Self {
+        seq: 0,
+        decimation: 0,
+        temp_cdeg: None,
+        raw: [[0; RAW_PER_GROUP]; GROUPS],
+    };
+
+    /// [`Self::parse`] into `self`, in place (a 240-byte frame is not moved through return values; on the
+    /// Cortex-M4 each such move is a `memcpy`); `self` is unchanged on an error.
+    pub fn parse_from<T: AsRef<[u8]>>(&mut self, frame: &Frame<T>) -> Result<(), WireError> {
         frame.check()?;
         let b = frame.bytes();
-        let mut raw = [[0u16; RAW_PER_GROUP]; GROUPS];
         let (pairs, _) = b[field::SAMPLES].as_chunks::<2>();
-        for (code, &pair) in raw.as_flattened_mut().iter_mut().zip(pairs) {
+        for (code, &pair) in self.raw.as_flattened_mut().iter_mut().zip(pairs) {
             *code = u16::from_le_bytes(pair);
         }
-        Ok(Self {
-            seq: frame.seq(),
-            decimation: frame.decimation(),
-            temp_cdeg: (frame.flags() & FLAG_TEMP_VALID != 0).then(|| frame.temp_raw_cdeg()),
-            raw,
-        })
+        self.seq = frame.seq();
+        self.decimation = frame.decimation();
+        self.temp_cdeg = (frame.flags() & FLAG_TEMP_VALID != 0).then(|| frame.temp_raw_cdeg());
+        Ok(())
+    }
+
+    /// [`Self::parse_bytes`] into `self`, in place (see [`Self::parse_from`]).
+    pub fn parse_from_bytes(&mut self, bytes: &[u8]) -> Result<(), WireError> {
+        self.parse_from(&Frame::new_checked(bytes)?)
     }
 
     /// Parses bytes (at least [`FRAME_LEN`]; extra bytes are ignored).
