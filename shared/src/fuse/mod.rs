@@ -287,9 +287,8 @@ impl<const G: usize> Fusion<G> {
         .unwrap_or(u32::MAX);
         let (mut sat, mut stuck) = ([0u32; 2], [0u32; 2]);
         for (g, (r, watch)) in raw.iter().zip(self.raw.iter_mut()).enumerate() {
-            let (gyro_sat, gyro_stuck) = watch.gyro.update(&r.gyro, above_min, span, stuck_repeats);
-            let (accel_sat, accel_stuck) =
-                watch.accel.update(&r.accel, above_min, span, stuck_repeats);
+            let [(gyro_sat, gyro_stuck), (accel_sat, accel_stuck)] =
+                watch.update(r, above_min, span, stuck_repeats);
             sat[0] |= u32::from(gyro_sat) << g;
             sat[1] |= u32::from(accel_sat) << g;
             stuck[0] |= u32::from(gyro_stuck) << g;
