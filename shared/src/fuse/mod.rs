@@ -23,6 +23,7 @@
 
 mod noise;
 mod robust;
+mod unroll;
 mod watch;
 
 use crate::calib::{AXES, CalibrationTable, RawCounts};
@@ -325,14 +326,17 @@ impl<const G: usize> Fusion<G> {
             let kind = usize::from(a >= 3);
             let candidates = Self::ALL & !excluded.get(kind).copied().unwrap_or(0);
             // The axis's column, and the candidates with padding that sorts after them, in one pass.
-            // (`from_fn` writes the column in place: a zeroed array filled by a loop cost a `memclr` call per axis.)
-            let mut sorted = [i32::MAX; G];
-            let column: [i32; G] = core::array::from_fn(|g| {
-                let v = axes.get(g).and_then(|row| row.get(a)).copied().unwrap_or(0);
-                if let Some(s) = sorted.get_mut(g).filter(|_| candidates >> g & 1 != 0) {
-                    *s = v;
+            let (mut column, mut sorted) = ([0i32; G], [0i32; G]);
+            unroll::zip_each(&mut sorted, axes, |g, s, row| {
+                let v = row.get(a).copied().unwrap_or(0);
+                if let Some(c) = column.get_mut(g as usize) {
+                    *c = v;
                 }
-                v
+                *s = if candidates >> g & 1 != 0 {
+                    v
+                } else {
+                    i32::MAX
+                };
             });
             let (n, fused, out_mask, mask) =
                 self.fuse_axis(a, &column, sorted, candidates, kind, fold);
@@ -417,9 +421,9 @@ impl<const G: usize> Fusion<G> {
                     threshold.wrapping_sub(med),
                     (threshold as u64).wrapping_mul(2),
                 );
-                for (g, &v) in x.iter().enumerate() {
+                unroll::each(x, |g, v| {
                     outliers |= u32::from(i64::from(v).wrapping_add(offset) as u64 > span) << g;
-                }
+                });
                 outliers &= candidates;
             }
         }
@@ -428,7 +432,7 @@ impl<const G: usize> Fusion<G> {
         // Noise estimates of the sensors used: a difference where the sensor was also used in the previous sample.
         // Branch-free over all groups (the usual case uses them all).
         let diffs = state.resid_valid & used;
-        for (g, (e, &v)) in state.est.iter_mut().zip(x).enumerate() {
+        unroll::zip_each(&mut state.est, x, |g, e, &v| {
             // = (x − median) clamped to i32
             let resid = v.saturating_sub(median);
             let take = diffs >> g & 1;
@@ -441,7 +445,7 @@ impl<const G: usize> Fusion<G> {
             e.block_n = e.block_n.wrapping_add(take as u16);
             // Read next sample only if the sensor is used now (`resid_valid` below).
             e.last_resid = resid;
-        }
+        });
         state.resid_valid = used;
         let weighted_mode = self.config.mode == FusionMode::InverseVariance;
         if fold {
@@ -472,17 +476,17 @@ impl<const G: usize> Fusion<G> {
             // Plain arithmetic, so that builds with overflow checks keep checking the bound: every weight is in
             // [1, 2¹⁶] (set so above, or the initial 2¹⁶), so |w · x| ≤ 2⁴⁷ and the sums of G ≤ 32 terms are < 2⁵³.
             #[allow(clippy::arithmetic_side_effects)]
-            for (g, (&v, &w)) in x.iter().zip(&state.weight_q16).enumerate() {
+            unroll::zip_each(&mut state.weight_q16, x, |g, &mut w, &v| {
                 // w ≤ 2¹⁶: w · x is an i32 × i32 product.
                 let w = (w & (used >> g & 1).wrapping_neg()) as i32;
                 num += i64::from(w) * i64::from(v);
                 den += i64::from(w);
-            }
+            });
         } else {
-            for (g, &v) in x.iter().enumerate() {
+            unroll::each(x, |g, v| {
                 // G ≤ 32 values of `i32`: |num| ≤ 2³⁶, cannot wrap.
                 num = num.wrapping_add(i64::from(v & (used >> g & 1).wrapping_neg() as i32));
-            }
+            });
             den = i64::from(used.count_ones());
         }
         if den == 0 {
