@@ -88,3 +88,38 @@ pub(super) fn zip_each<const G: usize, T, U>(
 pub(super) fn each<const G: usize, U: Copy>(b: &[U; G], mut f: impl FnMut(u32, U)) {
     zip_each(&mut [(); G], b, |g, (), &v| f(g, v));
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    extern crate std;
+    use std::vec::Vec;
+
+    /// Both paths visit every group once, in order, with its own elements, and write through.
+    fn visits_in_order<const G: usize>() {
+        let mut a: [u32; G] = core::array::from_fn(|g| g as u32 * 10);
+        let b: [u32; G] = core::array::from_fn(|g| g as u32 * 100);
+        let mut seen = Vec::new();
+        zip_each(&mut a, &b, |g, x, &y| {
+            seen.push((g, *x, y));
+            *x += 1;
+        });
+        let expected: Vec<(u32, u32, u32)> = (0..G as u32).map(|g| (g, g * 10, g * 100)).collect();
+        assert_eq!(seen, expected);
+        assert!(a.iter().enumerate().all(|(g, &x)| x == g as u32 * 10 + 1));
+        let mut seen = Vec::new();
+        each(&b, |g, y| seen.push((g, y)));
+        assert_eq!(
+            seen,
+            (0..G as u32).map(|g| (g, g * 100)).collect::<Vec<_>>()
+        );
+    }
+
+    #[test]
+    fn written_out_and_looped_paths_visit_every_group_in_order() {
+        visits_in_order::<16>();
+        visits_in_order::<1>();
+        visits_in_order::<7>();
+        visits_in_order::<32>();
+    }
+}
