@@ -17,7 +17,7 @@ use shared::fuse::{Fusion, FusionConfig, FusionMode};
 use shared::nav::NavIntegrator;
 use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
 use shared::wire::frame::{FRAME_LEN, GROUPS};
-use shared::wire::{Decoded, FrameDecoder};
+use shared::wire::{Frame, FrameDecoder};
 
 /// Instructions per SysTick tick: `-icount shift=3` = 8 ns per instruction, SysTick at 25 MHz = 40 ns per tick.
 const INSTRUCTIONS_PER_TICK: u64 = 5;
@@ -170,7 +170,7 @@ fn stages(bank: &mut AllanBank) {
     bank.0.reset();
     let mut frames = BenchFrames::new();
     let mut bytes = [0u8; FRAME_LEN * BATCH];
-    let mut decoded = [Decoded::EMPTY; BATCH];
+    let mut heads = [(0u16, None::<i16>); BATCH];
     let mut raw = [[RawCounts::default(); GROUPS]; BATCH];
     let mut axes = [[[0i32; AXES]; GROUPS]; BATCH];
     let mut fused = [[0i32; AXES]; BATCH];
@@ -183,15 +183,20 @@ fn stages(bank: &mut AllanBank) {
         let ticks = [
             ticks_between(|| {
                 let mut input = &bytes[..];
-                // As `Pipeline::push_link`: parsed in place.
-                for d in decoded.iter_mut() {
-                    core::hint::black_box(decoder.decode_into(&mut input, d));
+                // As `Pipeline::push_link`: the frame lent, its header read (the codes in the next stage).
+                for h in heads.iter_mut() {
+                    let lent =
+                        decoder.decode_with(&mut input, |f| *h = (f.decimation(), f.temp_cdeg()));
+                    core::hint::black_box(lent);
                 }
             }),
             ticks_between(|| {
-                for (d, r) in decoded.iter().zip(&mut raw) {
-                    for (r, codes) in r.iter_mut().zip(&d.frame.raw) {
-                        *r = RawCounts::from_adc(codes);
+                // As `Pipeline::push_link`: the codes read from the frame's bytes.
+                for (bytes, r) in bytes.chunks_exact(FRAME_LEN).zip(&mut raw) {
+                    if let Ok(f) = Frame::new_checked(bytes) {
+                        for (r, codes) in r.iter_mut().zip(f.groups()) {
+                            *r = RawCounts::from_adc(&codes);
+                        }
                     }
                 }
             }),

@@ -30,7 +30,7 @@ use crate::telemetry::{
     HealthReport, Mode, NavReport, PpsReport, Reject, Telemetry, TimeReport, decode, peek_tag,
 };
 use crate::wire::frame::{FRAME_LEN, GROUPS};
-use crate::wire::{Decoded, FpgaControl, FrameClock, FrameDecoder, LinkCounters};
+use crate::wire::{FpgaControl, FrameClock, FrameDecoder, LinkCounters, SeqGap};
 use core::borrow::BorrowMut;
 use core::num::{NonZeroU64, NonZeroU128};
 
@@ -220,6 +220,13 @@ impl Averager {
             unix_us: epoch_us.map(|e| self.t_us.wrapping_add(e)),
         }
     }
+}
+
+/// The fields of a frame besides its ADC codes that the pipeline uses.
+#[derive(Clone, Copy, Debug, Default)]
+struct FrameHead {
+    decimation: u16,
+    temp_cdeg: Option<i16>,
 }
 
 /// One frame's groups between the stages: signed ADC counts, then calibrated axes.
@@ -480,13 +487,23 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// left in `input`, when the outbox is nearly full: call [`Self::poll`] until it returns `None`, then call
     /// again with the rest. Nothing is lost either way.
     pub fn push_link(&mut self, input: &mut &[u8]) {
-        // One slot for every frame of the call: frames are parsed into it, never moved (`decode_into`).
-        let mut d = Decoded::EMPTY;
         while self.outbox.capacity().saturating_sub(self.outbox.len()) >= OUTPUTS_PER_FRAME {
-            if !self.decoder.decode_into(input, &mut d) {
-                return;
+            // The frame is lent where it lies (`decode_with`): its ADC codes go straight into signed counts.
+            let raw = &mut self.scratch.raw;
+            let mut head = FrameHead::default();
+            let lent = self.decoder.decode_with(input, |frame| {
+                head = FrameHead {
+                    decimation: frame.decimation(),
+                    temp_cdeg: frame.temp_cdeg(),
+                };
+                for (r, codes) in raw.iter_mut().zip(frame.groups()) {
+                    *r = RawCounts::from_adc(&codes);
+                }
+            });
+            match lent {
+                Some(gap) => self.process(head, gap),
+                None => return,
             }
-            self.process(&d);
         }
     }
 
@@ -616,19 +633,19 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         self.nav_clipped = 0;
     }
 
-    /// Frames lost before `d`: the sequence counter's count, unless the arrival gap shows an outage the 16-bit
-    /// counter cannot measure — an FPGA restart (the counter jumps back: the decoder's restart), or a silence of
+    /// Frames lost before a frame at `decimation`: the sequence counter's count (`seq_gap`), unless the arrival gap
+    /// shows an outage the 16-bit counter cannot measure — an FPGA restart (the counter jumps back: the decoder's restart), or a silence of
     /// 2¹⁶ frames or more (the counter wrapped: the arrival gap picks the multiple of 2¹⁶). Buffering only makes
     /// arrivals later, so a backlog read late never shortens time, and the counter stays exact for every gap it
     /// can see.
-    fn missing_before(&mut self, d: &Decoded) -> u32 {
-        let by_seq = d.missing_before;
+    fn missing_before(&mut self, decimation: u16, seq_gap: SeqGap) -> u32 {
+        let by_seq = seq_gap.missing_before;
         let (now, last) = (self.arrival_us, self.last_arrival_us);
         self.last_arrival_us = now;
         let (Some(now), Some(last), Some(n)) = (now, last, self.clock.decimation()) else {
             return by_seq;
         };
-        if n != d.frame.decimation {
+        if n != decimation {
             return by_seq; // a new rate: the clock restarts its statistics and ignores gaps anyway
         }
         // The arrival gap in frames, rounded: gap · rate / ((N + 1) · 10⁹), both sides in units of 10⁻⁹ base ticks
@@ -641,13 +658,13 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         // Without a restart, the arrival gap only matters once it could hide a wrap of the counter (the test
         // below needs ≥ 2¹⁶ + 1 − slack frames): the usual frame ends here, without a 128-bit division.
         let wrap_min = u128::from((1u32 << 16).wrapping_add(1).saturating_sub(slack));
-        if !d.restarted && rounded < wrap_min.wrapping_mul(frame) {
+        if !seq_gap.restarted && rounded < wrap_min.wrapping_mul(frame) {
             return by_seq;
         }
         // `frame` ≥ 10⁹: not zero.
         let frames = rounded / NonZeroU128::new(frame).unwrap_or(NonZeroU128::MIN);
         let by_time = u32::try_from(frames.saturating_sub(1)).unwrap_or(u32::MAX);
-        let missing = if d.restarted {
+        let missing = if seq_gap.restarted {
             by_time
         } else {
             // The counter is right modulo 2¹⁶; time says how many wraps.
@@ -660,10 +677,10 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         missing
     }
 
-    fn process(&mut self, d: &Decoded) {
-        let f = &d.frame;
-        let missing = self.missing_before(d);
-        let tick = self.clock.advance_by(f.decimation, missing);
+    /// One frame, whose signed counts `push_link` put into `scratch.raw`.
+    fn process(&mut self, head: FrameHead, gap: SeqGap) {
+        let missing = self.missing_before(head.decimation, gap);
+        let tick = self.clock.advance_by(head.decimation, missing);
         if tick.rate_changed {
             self.restart_statistics();
         }
@@ -673,15 +690,12 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         // 3.0 k instructions per frame, the loop 0.8 k (`mcu-bench`); at opt-level 2 `from_fn` and `each_ref().map`
         // still cost 0.4–0.7 k more than the loops.
         let FrameScratch { raw, axes } = &mut self.scratch;
-        for (r, codes) in raw.iter_mut().zip(&f.raw) {
-            *r = RawCounts::from_adc(codes);
-        }
         for ((out, r), cal) in axes.iter_mut().zip(raw.iter()).zip(&self.cal.groups) {
             *out = cal.apply(r);
         }
         let fused = self.fusion.fuse(raw, axes, &self.cal);
         if self.config.nav {
-            self.integrate(&fused, f.decimation, missing, tick.base_ticks);
+            self.integrate(&fused, head.decimation, missing, tick.base_ticks);
         }
         if !fused.valid() {
             self.invalid_frames = self.invalid_frames.wrapping_add(1);
@@ -705,7 +719,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             let lead = arrival.wrapping_sub(t_us) as i64;
             self.arrival_lead_us = Some(self.arrival_lead_us.map_or(lead, |m| m.min(lead)));
         }
-        self.avg.add(&fused, f.temp_cdeg, t_us);
+        self.avg.add(&fused, head.temp_cdeg, t_us);
         self.last = fused;
         if self.avg.frames >= self.config.frames_per_output.max(1) {
             let report = self.avg.report(self.out_seq, self.time_epoch_us);
@@ -715,7 +729,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             if self.config.nav {
                 let end = tick
                     .base_ticks
-                    .wrapping_add(u64::from(f.decimation).wrapping_add(1));
+                    .wrapping_add(u64::from(head.decimation).wrapping_add(1));
                 self.push_nav(report.seq, end);
             }
             // Counted only when periodic health is on (health_every == 0: only on request); then the count stays

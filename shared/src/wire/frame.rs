@@ -139,6 +139,24 @@ impl<T: AsRef<[u8]>> Frame<T> {
         self.u16_at(field::TEMP.start) as i16
     }
 
+    /// Board temperature in 0.01 °C when the FPGA marked it valid.
+    pub fn temp_cdeg(&self) -> Option<i16> {
+        (self.flags() & FLAG_TEMP_VALID != 0).then(|| self.temp_raw_cdeg())
+    }
+
+    /// The ADC codes of every group in order, read from the bytes as they are needed (no copy of the frame).
+    pub fn groups(&self) -> impl Iterator<Item = RawGroup> + '_ {
+        let (groups, _) = self.bytes()[field::SAMPLES].as_chunks::<{ 2 * RAW_PER_GROUP }>();
+        groups.iter().map(|bytes| {
+            let (pairs, _) = bytes.as_chunks::<2>();
+            let mut codes = [0u16; RAW_PER_GROUP];
+            for (code, &pair) in codes.iter_mut().zip(pairs) {
+                *code = u16::from_le_bytes(pair);
+            }
+            codes
+        })
+    }
+
     /// CRC field.
     pub fn crc(&self) -> u32 {
         let b = self.bytes();
@@ -195,6 +213,12 @@ impl FrameRepr {
     /// Cortex-M4 each such move is a `memcpy`); `self` is unchanged on an error.
     pub fn parse_from<T: AsRef<[u8]>>(&mut self, frame: &Frame<T>) -> Result<(), WireError> {
         frame.check()?;
+        self.fill_from(frame);
+        Ok(())
+    }
+
+    /// Copies a view's fields into `self` without checking sync or CRC (the decoder checked them).
+    pub(crate) fn fill_from<T: AsRef<[u8]>>(&mut self, frame: &Frame<T>) {
         let b = frame.bytes();
         let (pairs, _) = b[field::SAMPLES].as_chunks::<2>();
         for (code, &pair) in self.raw.as_flattened_mut().iter_mut().zip(pairs) {
@@ -202,8 +226,7 @@ impl FrameRepr {
         }
         self.seq = frame.seq();
         self.decimation = frame.decimation();
-        self.temp_cdeg = (frame.flags() & FLAG_TEMP_VALID != 0).then(|| frame.temp_raw_cdeg());
-        Ok(())
+        self.temp_cdeg = frame.temp_cdeg();
     }
 
     /// [`Self::parse_bytes`] into `self`, in place (see [`Self::parse_from`]).

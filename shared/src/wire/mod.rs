@@ -11,5 +11,5 @@ pub mod frame;
 
 pub use clock::{FrameClock, Tick};
 pub use control::{ControlError, FpgaControl};
-pub use decoder::{Decoded, FrameDecoder, LinkCounters};
+pub use decoder::{Decoded, FrameDecoder, LinkCounters, SeqGap};
 pub use frame::{Frame, FrameRepr, RawSample, WireError};
