@@ -49,15 +49,6 @@ pub struct SeqGap {
     pub restarted: bool,
 }
 
-impl Decoded {
-    /// A slot for [`FrameDecoder::decode_into`].
-    pub const EMPTY: Self = Self {
-        frame: FrameRepr::EMPTY,
-        missing_before: 0,
-        restarted: false,
-    };
-}
-
 /// Streaming frame decoder (see the module documentation).
 #[derive(Clone, Debug)]
 pub struct FrameDecoder {
@@ -135,19 +126,13 @@ impl FrameDecoder {
     /// Call it again with the rest of `input` until it returns `None`; bytes are never consumed without being
     /// either buffered, counted as skipped, or returned as part of a frame.
     pub fn decode(&mut self, input: &mut &[u8]) -> Option<Decoded> {
-        let mut d = Decoded::EMPTY;
-        self.decode_into(input, &mut d).then_some(d)
-    }
-
-    /// [`Self::decode`] into the slot `out`: `true` when a frame was written there (`out` is unchanged otherwise).
-    pub fn decode_into(&mut self, input: &mut &[u8], out: &mut Decoded) -> bool {
-        match self.decode_with(input, |frame| out.frame.fill_from(frame)) {
-            Some(gap) => {
-                (out.missing_before, out.restarted) = (gap.missing_before, gap.restarted);
-                true
-            }
-            None => false,
-        }
+        let mut frame = FrameRepr::EMPTY;
+        let gap = self.decode_with(input, |f| frame.fill_from(f))?;
+        Some(Decoded {
+            frame,
+            missing_before: gap.missing_before,
+            restarted: gap.restarted,
+        })
     }
 
     /// [`Self::decode`], lending the frame instead of returning it: `lend` gets the checked view of its bytes,

@@ -196,26 +196,19 @@ pub struct FrameRepr {
 impl FrameRepr {
     /// Parses a checked view (sync and CRC verified here).
     pub fn parse<T: AsRef<[u8]>>(frame: &Frame<T>) -> Result<Self, WireError> {
+        frame.check()?;
         let mut repr = Self::EMPTY;
-        repr.parse_from(frame)?;
+        repr.fill_from(frame);
         Ok(repr)
     }
 
-    /// A frame of zeros (sequence 0, decimation 0, no temperature): a slot for [`Self::parse_from`].
+    /// A frame of zeros (sequence 0, decimation 0, no temperature).
     pub const EMPTY: Self = Self {
         seq: 0,
         decimation: 0,
         temp_cdeg: None,
         raw: [[0; RAW_PER_GROUP]; GROUPS],
     };
-
-    /// [`Self::parse`] into `self`, in place (a 240-byte frame is not moved through return values; on the
-    /// Cortex-M4 each such move is a `memcpy`); `self` is unchanged on an error.
-    pub fn parse_from<T: AsRef<[u8]>>(&mut self, frame: &Frame<T>) -> Result<(), WireError> {
-        frame.check()?;
-        self.fill_from(frame);
-        Ok(())
-    }
 
     /// Copies a view's fields into `self` without checking sync or CRC (the decoder checked them).
     pub(crate) fn fill_from<T: AsRef<[u8]>>(&mut self, frame: &Frame<T>) {
@@ -227,11 +220,6 @@ impl FrameRepr {
         self.seq = frame.seq();
         self.decimation = frame.decimation();
         self.temp_cdeg = frame.temp_cdeg();
-    }
-
-    /// [`Self::parse_bytes`] into `self`, in place (see [`Self::parse_from`]).
-    pub fn parse_from_bytes(&mut self, bytes: &[u8]) -> Result<(), WireError> {
-        self.parse_from(&Frame::new_checked(bytes)?)
     }
 
     /// Parses bytes (at least [`FRAME_LEN`]; extra bytes are ignored).
