@@ -13,7 +13,7 @@ use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
 use shared::bench::BenchFrames;
 use shared::calib::{AXES, CalibrationTable, RawCounts};
-use shared::fuse::{Fusion, FusionConfig, FusionMode};
+use shared::fuse::{FusedSample, Fusion, FusionConfig, FusionMode};
 use shared::nav::NavIntegrator;
 use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
 use shared::wire::frame::{FRAME_LEN, GROUPS};
@@ -174,6 +174,7 @@ fn stages(bank: &mut AllanBank) {
     let mut raw = [[RawCounts::default(); GROUPS]; BATCH];
     let mut axes = [[[0i32; AXES]; GROUPS]; BATCH];
     let mut fused = [[0i32; AXES]; BATCH];
+    let mut sample = FusedSample::default();
     let overhead = ticks_between(|| {});
     let mut totals = [0u64; NAMES.len()];
     for batch in 0..WARMUP_FRAMES / BATCH + BATCHES {
@@ -208,8 +209,10 @@ fn stages(bank: &mut AllanBank) {
                 }
             }),
             ticks_between(|| {
+                // As `Pipeline`: into one slot.
                 for ((f, r), a) in fused.iter_mut().zip(&raw).zip(&axes) {
-                    *f = fusion.fuse(r, a, &cal).axes;
+                    fusion.fuse_into(r, a, &cal, &mut sample);
+                    *f = sample.axes;
                 }
             }),
             ticks_between(|| {

@@ -693,10 +693,12 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         for ((out, r), cal) in axes.iter_mut().zip(raw.iter()).zip(&self.cal.groups) {
             *out = cal.apply(r);
         }
-        let fused = self.fusion.fuse(raw, axes, &self.cal);
+        // Fused straight into `last` (read below, and by `last_fused`).
+        self.fusion.fuse_into(raw, axes, &self.cal, &mut self.last);
         if self.config.nav {
-            self.integrate(&fused, head.decimation, missing, tick.base_ticks);
+            self.integrate(head.decimation, missing, tick.base_ticks);
         }
+        let fused = &self.last;
         if !fused.valid() {
             self.invalid_frames = self.invalid_frames.wrapping_add(1);
         }
@@ -719,8 +721,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             let lead = arrival.wrapping_sub(t_us) as i64;
             self.arrival_lead_us = Some(self.arrival_lead_us.map_or(lead, |m| m.min(lead)));
         }
-        self.avg.add(&fused, head.temp_cdeg, t_us);
-        self.last = fused;
+        self.avg.add(&self.last, head.temp_cdeg, t_us);
         if self.avg.frames >= self.config.frames_per_output.max(1) {
             let report = self.avg.report(self.out_seq, self.time_epoch_us);
             self.out_seq = self.out_seq.wrapping_add(1);
@@ -746,9 +747,10 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         }
     }
 
-    /// One frame into the navigation increments: the fused rate and specific force (SI units, `f32`) over the
-    /// frame's time step; lost frames before it, and a frame without a valid fused sample, bridged.
-    fn integrate(&mut self, fused: &FusedSample, decimation: u16, missing: u32, base_ticks: u64) {
+    /// One frame into the navigation increments: the fused rate and specific force of `last` (SI units, `f32`) over
+    /// the frame's time step; lost frames before it, and a frame without a valid fused sample, bridged.
+    fn integrate(&mut self, decimation: u16, missing: u32, base_ticks: u64) {
+        let fused = &self.last;
         const RAD_PER_UDEG: f32 = core::f32::consts::PI / 180.0e6;
         const MPS2_PER_UG: f32 = 9.806_65e-6;
         let dt_s = f32::from(decimation) + 1.0;

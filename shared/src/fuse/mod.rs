@@ -271,6 +271,20 @@ impl<const G: usize> Fusion<G> {
         table: &CalibrationTable<G>,
     ) -> FusedSample {
         let mut out = FusedSample::default();
+        self.fuse_into(raw, axes, table, &mut out);
+        out
+    }
+
+    /// [`Self::fuse`] into `out`, every field of which it writes (the pipeline's path: a returned `FusedSample` was
+    /// zeroed, then copied twice, ≈ 0.2 k Cortex-M4 instructions per frame).
+    pub fn fuse_into(
+        &mut self,
+        raw: &[RawCounts; G],
+        axes: &[[i32; AXES]; G],
+        table: &CalibrationTable<G>,
+        out: &mut FusedSample,
+    ) {
+        out.health = HealthMask::default();
         // Sensor-level exclusion, bitmasks over groups per kind [gyro, accel].
         let stuck_repeats = self.config.stuck_window.max(2).saturating_sub(1);
         // code ≤ raw_min or code ≥ raw_max  ⇔  (code − raw_min − 1) mod 2³² ≥ span = max(raw_max − raw_min − 1, 0):
@@ -364,7 +378,6 @@ impl<const G: usize> Fusion<G> {
             }
         }
         self.samples = self.samples.wrapping_add(1);
-        out
     }
 
     /// One axis: `x` the groups' values, `sorted` the candidates' values and `i32::MAX` for the others,

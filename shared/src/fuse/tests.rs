@@ -208,6 +208,46 @@ fn all_sensors_failed_gives_an_invalid_sample() {
     assert_eq!(out.health.gyro.saturated, 0xFFFF);
 }
 
+/// `fuse_into` writes every field of its slot: into a slot full of another sample's values (all bits set) it gives
+/// what `fuse` gives, for a clean sample and for one with faults, with and without fault exclusion.
+#[test]
+fn fuse_into_overwrites_the_whole_slot() {
+    let table = CalibrationTable::<G>::factory();
+    let ones = SensorFaults {
+        saturated: u32::MAX,
+        stuck: u32::MAX,
+        outlier: u32::MAX,
+    };
+    let garbage = FusedSample {
+        axes: [-1; AXES],
+        used: [u8::MAX; AXES],
+        used_mask: [u32::MAX; AXES],
+        health: HealthMask {
+            gyro: ones,
+            accel: ones,
+        },
+    };
+    let clean = [RawCounts {
+        gyro: [19_680; 4],
+        accel: [24_000; 3],
+    }; G];
+    let mut railed = clean;
+    railed[3].accel[1] = 65_535;
+    for robust in [true, false] {
+        let config = FusionConfig {
+            robust,
+            ..FusionConfig::DEFAULT
+        };
+        let (mut a, mut b) = (Fusion::<G>::new(config), Fusion::<G>::new(config));
+        for raw in [clean, railed, clean] {
+            let axes = [[1_000; AXES]; G];
+            let mut slot = garbage;
+            a.fuse_into(&raw, &axes, &table, &mut slot);
+            assert_eq!(slot, b.fuse(&raw, &axes, &table), "robust {robust}");
+        }
+    }
+}
+
 #[test]
 fn helpers_round_and_take_medians() {
     assert_eq!(div_round(7, 2), 4);
