@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command as Proc, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{table, upload_commands};
+use common::{healths, table, upload_commands};
 use shared::bus::BusConfig;
 use shared::telemetry::{
     CalSource, Command, CommandEnvelope, MAX_MESSAGE_LEN, Telemetry, decode, encode,
@@ -323,14 +323,7 @@ fn sitl_on_an_empty_log_sends_health_and_stops_on_sigterm() {
         &std::fs::read(&bus).unwrap(),
         &BusConfig::DEFAULT,
     );
-    let health: Vec<_> = log
-        .messages
-        .iter()
-        .filter_map(|m| match m {
-            Telemetry::Health(h) => Some(*h),
-            _ => None,
-        })
-        .collect();
+    let health = healths(&log.messages);
     assert!(
         (2..=4).contains(&health.len()),
         "{} Health reports in 3.5 s of silence",

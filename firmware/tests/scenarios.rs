@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::{Ground, Sat, frame_period, frames, table, upload_commands};
+use common::{Ground, Sat, frame_period, frames, healths, housekeeping, table, upload_commands};
 use embassy_time::{Duration, Instant, Timer};
 use embedded_io_async::Write as _;
 use firmware::app::Task;
@@ -42,15 +42,6 @@ fn last_fused(t: &[Telemetry]) -> shared::telemetry::FusedReport {
             _ => None,
         })
         .expect("a fused report")
-}
-
-fn healths(t: &[Telemetry]) -> Vec<shared::telemetry::HealthReport> {
-    t.iter()
-        .filter_map(|t| match t {
-            Telemetry::Health(h) => Some(*h),
-            _ => None,
-        })
-        .collect()
 }
 
 /// A frame log through the tasks, then the ground's final dump (all Allan channels, detailed health), gives the
@@ -455,7 +446,7 @@ fn a_silent_fpga_still_sends_health() {
 /// (168 MHz) and restarts the stream; Housekeeping reports the mode and the clock all along.
 #[test]
 fn idle_stops_the_stream_and_lowers_the_core_clock() {
-    use shared::telemetry::{HousekeepingReport, Mode};
+    use shared::telemetry::Mode;
     const FULL_HZ: u32 = firmware::sim::node::SimCoreClock::FULL_HZ;
     let mut sat = Sat::fresh();
     let mut ground = Ground::new();
@@ -481,14 +472,7 @@ fn idle_stops_the_stream_and_lowers_the_core_clock() {
         .flat_map(|on| FpgaControl::SetStreaming(on).to_bytes())
         .collect();
     assert_eq!(fpga, expected);
-    let hk: Vec<HousekeepingReport> = ground
-        .telemetry
-        .iter()
-        .filter_map(|t| match t {
-            Telemetry::Housekeeping(h) => Some(*h),
-            _ => None,
-        })
-        .collect();
+    let hk = housekeeping(&ground.telemetry);
     let seen: Vec<(Mode, Option<u32>)> = hk.iter().map(|h| (h.mode, h.core_clock_hz)).collect();
     assert!(seen.len() >= 5, "{seen:?}");
     assert!(seen.iter().all(|&(mode, hz)| hz
@@ -639,7 +623,7 @@ fn an_fpga_restart_keeps_the_outage_on_the_time_line() {
 fn housekeeping_reports_the_board_and_repairs_a_corrupted_calibration() {
     use firmware::app::{BootInfo, FW_COMMIT};
     use firmware::sim::line::SimRxError;
-    use shared::telemetry::{FaultKind, FaultRecord, HousekeepingReport, StoreOutcome};
+    use shared::telemetry::{FaultKind, FaultRecord, StoreOutcome};
     let fault = FaultRecord {
         kind: FaultKind::HardFault,
         pc: 0x0800_C123,
@@ -668,14 +652,7 @@ fn housekeeping_reports_the_board_and_repairs_a_corrupted_calibration() {
         Timer::after(Duration::from_millis(2500)).await;
         ground.receive(board);
     });
-    let hk: Vec<HousekeepingReport> = ground
-        .telemetry
-        .iter()
-        .filter_map(|t| match t {
-            Telemetry::Housekeeping(h) => Some(*h),
-            _ => None,
-        })
-        .collect();
+    let hk = housekeeping(&ground.telemetry);
     assert!((4..=6).contains(&hk.len()), "{} reports in ≈ 5 s", hk.len());
     // On a 1 s grid (one report runs late after the store's 0.5 s flash stall).
     assert!(hk.windows(2).all(|w| w[1].uptime_ms > w[0].uptime_ms));

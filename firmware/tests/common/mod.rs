@@ -261,3 +261,23 @@ pub fn frame_period() -> Duration {
         PipelineConfig::DEFAULT.fpga_base_rate_millihz,
     ))
 }
+
+/// The Health reports among `t`, in order.
+pub fn healths(t: &[Telemetry]) -> Vec<shared::telemetry::HealthReport> {
+    t.iter()
+        .filter_map(|t| match t {
+            Telemetry::Health(h) => Some(*h),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The Housekeeping reports among `t`, in order.
+pub fn housekeeping(t: &[Telemetry]) -> Vec<shared::telemetry::HousekeepingReport> {
+    t.iter()
+        .filter_map(|t| match t {
+            Telemetry::Housekeeping(h) => Some(*h),
+            _ => None,
+        })
+        .collect()
+}
