@@ -282,7 +282,7 @@ pub struct Pipeline<B> {
     allan: B,
     fused_hold: [i32; AXES],
     /// The frame in work: every field is written before it is read, each frame (kept here rather than zeroed on the
-    /// stack each frame: −0.2 k Cortex-M4 instructions per frame).
+    /// stack each frame: −0.3 k Cortex-M4 instructions per frame).
     scratch: FrameScratch,
     clock: FrameClock,
     last: FusedSample,
