@@ -29,6 +29,7 @@ use crate::telemetry::{
     Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, FusedReport,
     HealthReport, Mode, NavReport, PpsReport, Reject, Telemetry, TimeReport, decode, peek_tag,
 };
+use crate::wire::clock::TicksToUs;
 use crate::wire::frame::{FRAME_LEN, GROUPS};
 use crate::wire::{FpgaControl, FrameClock, FrameDecoder, LinkCounters, SeqGap};
 use core::borrow::BorrowMut;
@@ -285,6 +286,8 @@ pub struct Pipeline<B> {
     /// stack each frame: −0.3 k Cortex-M4 instructions per frame).
     scratch: FrameScratch,
     clock: FrameClock,
+    /// The frame clock's ticks in µs, kept incrementally.
+    ticks_us: TicksToUs,
     last: FusedSample,
     avg: Averager,
     out_seq: u32,
@@ -338,6 +341,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 axes: [[0; AXES]; GROUPS],
             },
             clock: FrameClock::new(),
+            ticks_us: TicksToUs::new(),
             last: FusedSample {
                 axes: [0; AXES],
                 used: [0; AXES],
@@ -684,7 +688,9 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         if tick.rate_changed {
             self.restart_statistics();
         }
-        let t_us = FrameClock::ticks_to_us(tick.base_ticks, self.config.fpga_base_rate_millihz);
+        let t_us = self
+            .ticks_us
+            .us(tick.base_ticks, self.config.fpga_base_rate_millihz);
 
         // Loops into initialised arrays, not `array::map`: on the M4 (opt-level "s") the map's staging copies cost
         // 3.0 k instructions per frame, the loop 0.8 k (`mcu-bench`); at opt-level 2 `from_fn` and `each_ref().map`
