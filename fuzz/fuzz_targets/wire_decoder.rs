@@ -2,7 +2,7 @@
 //!
 //! Input: a stream built from pieces (raw bytes, valid-CRC frames, damaged frames) and a chunking.
 //! Properties:
-//! * decoding the stream in arbitrary chunks gives the same frames (with `missing_before`) and the same
+//! * decoding the stream in arbitrary chunks gives the same frames (with their sequence gaps) and the same
 //!   `LinkCounters` as decoding it in one call;
 //! * byte accounting: frames·FRAME_LEN + bytes_skipped ≤ total, and less than one frame's worth is held back;
 //! * every decoded frame re-emits to bytes that parse back to the same frame;

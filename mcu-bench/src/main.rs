@@ -195,9 +195,7 @@ fn stages(bank: &mut AllanBank) {
                 // As `Pipeline::push_link`: the codes read from the frame's bytes.
                 for (bytes, r) in bytes.chunks_exact(FRAME_LEN).zip(&mut raw) {
                     if let Ok(f) = Frame::new_checked(bytes) {
-                        for (r, codes) in r.iter_mut().zip(f.groups()) {
-                            *r = RawCounts::from_adc(&codes);
-                        }
+                        RawCounts::read_frame(&f, r);
                     }
                 }
             }),

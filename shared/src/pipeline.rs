@@ -334,10 +334,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             allan: bank,
             fused_hold: [0; AXES],
             scratch: FrameScratch {
-                raw: [RawCounts {
-                    gyro: [0; crate::calib::GYRO_RAW],
-                    accel: [0; crate::calib::ACCEL_RAW],
-                }; GROUPS],
+                raw: [RawCounts::default(); GROUPS],
                 axes: [[0; AXES]; GROUPS],
             },
             clock: FrameClock::new(),
@@ -500,9 +497,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                     decimation: frame.decimation(),
                     temp_cdeg: frame.temp_cdeg(),
                 };
-                for (r, codes) in raw.iter_mut().zip(frame.groups()) {
-                    *r = RawCounts::from_adc(&codes);
-                }
+                RawCounts::read_frame(frame, raw);
             });
             match lent {
                 Some(gap) => self.process(head, gap),
@@ -638,10 +633,10 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     }
 
     /// Frames lost before a frame at `decimation`: the sequence counter's count (`seq_gap`), unless the arrival gap
-    /// shows an outage the 16-bit counter cannot measure — an FPGA restart (the counter jumps back: the decoder's restart), or a silence of
-    /// 2¹⁶ frames or more (the counter wrapped: the arrival gap picks the multiple of 2¹⁶). Buffering only makes
-    /// arrivals later, so a backlog read late never shortens time, and the counter stays exact for every gap it
-    /// can see.
+    /// shows an outage the 16-bit counter cannot measure — an FPGA restart (the counter jumps back: the decoder's
+    /// restart), or a silence of 2¹⁶ frames or more (the counter wrapped: the arrival gap picks the multiple of
+    /// 2¹⁶). Buffering only makes arrivals later, so a backlog read late never shortens time, and the counter stays
+    /// exact for every gap it can see.
     fn missing_before(&mut self, decimation: u16, seq_gap: SeqGap) -> u32 {
         let by_seq = seq_gap.missing_before;
         let (now, last) = (self.arrival_us, self.last_arrival_us);

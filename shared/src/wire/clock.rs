@@ -45,7 +45,7 @@ impl FrameClock {
 
     /// Takes the next decoded frame; returns its time.
     pub fn advance(&mut self, d: &Decoded) -> Tick {
-        self.advance_by(d.frame.decimation, d.missing_before)
+        self.advance_by(d.frame.decimation, d.gap.missing_before)
     }
 
     /// Takes the next frame, of decimation `decimation`, after `missing_before` lost frames (the decoder's count,

@@ -32,20 +32,18 @@ pub struct LinkCounters {
 pub struct Decoded {
     /// The frame.
     pub frame: FrameRepr,
-    /// Frames missing between the previous accepted frame and this one (0 when contiguous, or for the first frame
-    /// and after a restart).
-    pub missing_before: u32,
-    /// The sequence counter jumped back by less than 2¹⁵ (counted in `seq_restarts`): the FPGA restarted, or a gap of
-    /// 2¹⁵ frames or more hid the count.
-    pub restarted: bool,
+    /// The sequence gap before it.
+    pub gap: SeqGap,
 }
 
 /// What the sequence counter says about the frames before an accepted frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SeqGap {
-    /// Frames missing between the previous accepted frame and this one (as [`Decoded::missing_before`]).
+    /// Frames missing between the previous accepted frame and this one (0 when contiguous, or for the first frame
+    /// and after a restart).
     pub missing_before: u32,
-    /// The counter jumped back (as [`Decoded::restarted`]).
+    /// The sequence counter jumped back by less than 2¹⁵ (counted in `seq_restarts`): the FPGA restarted, or a gap of
+    /// 2¹⁵ frames or more hid the count.
     pub restarted: bool,
 }
 
@@ -128,11 +126,7 @@ impl FrameDecoder {
     pub fn decode(&mut self, input: &mut &[u8]) -> Option<Decoded> {
         let mut frame = FrameRepr::EMPTY;
         let gap = self.decode_with(input, |f| frame.fill_from(f))?;
-        Some(Decoded {
-            frame,
-            missing_before: gap.missing_before,
-            restarted: gap.restarted,
-        })
+        Some(Decoded { frame, gap })
     }
 
     /// [`Self::decode`], lending the frame instead of returning it: `lend` gets the checked view of its bytes,

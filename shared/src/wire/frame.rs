@@ -212,10 +212,8 @@ impl FrameRepr {
 
     /// Copies a view's fields into `self` without checking sync or CRC (the decoder checked them).
     pub(crate) fn fill_from<T: AsRef<[u8]>>(&mut self, frame: &Frame<T>) {
-        let b = frame.bytes();
-        let (pairs, _) = b[field::SAMPLES].as_chunks::<2>();
-        for (code, &pair) in self.raw.as_flattened_mut().iter_mut().zip(pairs) {
-            *code = u16::from_le_bytes(pair);
+        for (codes, group) in self.raw.iter_mut().zip(frame.groups()) {
+            *codes = group;
         }
         self.seq = frame.seq();
         self.decimation = frame.decimation();

@@ -98,7 +98,7 @@ fn one_flipped_bit_costs_one_frame_and_is_counted() {
     let got = decode_all(&mut dec, &stream, &[1]);
     let seqs: Vec<u16> = got.iter().map(|d| d.frame.seq).collect();
     assert_eq!(seqs, [0, 1, 3, 4]);
-    assert_eq!(got[2].missing_before, 1);
+    assert_eq!(got[2].gap.missing_before, 1);
     let c = dec.counters();
     assert_eq!(
         (c.frames, c.crc_errors, c.resyncs, c.frames_dropped),
