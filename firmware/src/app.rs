@@ -36,7 +36,7 @@ use embedded_storage::nor_flash::NorFlash;
 use shared::bus::csp::CspHeader;
 use shared::bus::{BusConfig, BusCounters, BusEvent, BusNode, MAX_PAYLOAD, MAX_WIRE_FRAME};
 use shared::calib::encoded_len_max;
-use shared::pipeline::{AllanBank, Output, Pipeline};
+use shared::pipeline::{AllanBank, Output, Pipeline, PipelineConfig};
 use shared::storage::CalStore;
 use shared::telemetry::{
     CalSource, FaultRecord, HousekeepingReport, RxErrorCounts, StoreOutcome, Telemetry,
@@ -138,7 +138,6 @@ pub struct ShellCounters {
     pub cal_ram_repairs: u32,
 }
 
-#[derive(Default)]
 struct AtomicCounters([AtomicU32; 12]);
 
 #[derive(Clone, Copy)]
@@ -164,6 +163,29 @@ pub struct BootInfo {
     pub reset_flags: u8,
     /// The fault recorded before this reset.
     pub fault: Option<FaultRecord>,
+}
+
+/// What the board offers the shell besides its peripherals (nothing, on the host, unless a test sets it).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Platform {
+    /// What the board knew at boot (reset flags, a recorded fault).
+    pub boot: BootInfo,
+    /// A cycle counter, for the core's load in housekeeping (at the rate the [`CoreClock`] reports).
+    pub cycles: Option<CycleCounter>,
+    /// A reader of the MCU's temperature (0.01 °C) and VDDA (mV), for housekeeping.
+    pub mcu_sensors: Option<McuSensorReader>,
+}
+
+impl Platform {
+    /// Nothing known, nothing offered (`Default`, usable in `const`).
+    pub const NONE: Self = Self {
+        boot: BootInfo {
+            reset_flags: 0,
+            fault: None,
+        },
+        cycles: None,
+        mcu_sensors: None,
+    };
 }
 
 /// Reads the MCU's (temperature in 0.01 °C, VDDA in mV); `None` when it cannot.
@@ -213,9 +235,7 @@ pub struct App<B> {
     counters: AtomicCounters,
     bus_counters: BlockingMutex<Raw, Cell<BusCounters>>,
     last_store: BlockingMutex<Raw, Cell<StoreOutcome>>,
-    boot: BootInfo,
-    cycles: Option<CycleCounter>,
-    mcu_sensors: Option<McuSensorReader>,
+    platform: Platform,
     /// Cycles the link task spent processing frames (wrapping).
     busy_cycles: AtomicU32,
     /// The core clock's rate, Hz, as `fpga_ctrl_loop` last set it (0: not yet).
@@ -223,44 +243,32 @@ pub struct App<B> {
 }
 
 impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
-    /// The shared state around `pipeline`, for a node with bus configuration `bus`.
-    pub fn new(pipeline: Pipeline<B>, bus: BusConfig) -> Self {
+    /// The shared state of a node with bus configuration `bus`, around a new pipeline with `config`, the (empty)
+    /// Allan bank `bank` and the factory calibration (`load_calibration` replaces it, through `pipeline.get_mut()`
+    /// before the tasks start). `const`: the MCU builds its 14 KiB `App` at compile time in a `static`, never on the
+    /// stack (`docs/firmware.md`, stack).
+    pub const fn new(config: PipelineConfig, bank: B, bus: BusConfig, platform: Platform) -> Self {
         Self {
-            pipeline: Mutex::new(pipeline),
+            pipeline: Mutex::new(Pipeline::new(config, bank)),
             bus,
             telemetry: Channel::new(),
             replies: Channel::new(),
             fpga: Channel::new(),
             persist: Signal::new(),
             reload: Signal::new(),
-            progress: Default::default(),
-            counters: AtomicCounters::default(),
-            bus_counters: BlockingMutex::new(Cell::new(BusCounters::default())),
+            progress: [const { AtomicU32::new(0) }; 3],
+            counters: AtomicCounters([const { AtomicU32::new(0) }; 12]),
+            bus_counters: BlockingMutex::new(Cell::new(BusCounters::ZERO)),
             last_store: BlockingMutex::new(Cell::new(StoreOutcome::None)),
-            boot: BootInfo::default(),
-            cycles: None,
-            mcu_sensors: None,
+            platform,
             busy_cycles: AtomicU32::new(0),
             core_hz: AtomicU32::new(0),
         }
     }
 
-    /// With what the board knew at boot (reset flags, a recorded fault).
-    pub fn with_boot(mut self, boot: BootInfo) -> Self {
-        self.boot = boot;
-        self
-    }
-
-    /// With a reader of the MCU's temperature (0.01 °C) and VDDA (mV), for housekeeping.
-    pub fn with_mcu_sensors(mut self, read: McuSensorReader) -> Self {
-        self.mcu_sensors = Some(read);
-        self
-    }
-
-    /// With a cycle counter, for the core's load in housekeeping (at the rate the [`CoreClock`] reports).
-    pub fn with_cycle_counter(mut self, cycles: CycleCounter) -> Self {
-        self.cycles = Some(cycles);
-        self
+    /// Puts what the board offers in place (before the tasks start).
+    pub fn set_platform(&mut self, platform: Platform) {
+        self.platform = platform;
     }
 
     /// The bus configuration.
@@ -313,8 +321,8 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
             uptime_ms: now.as_millis(),
             fw_commit: FW_COMMIT.0,
             fw_dirty: FW_COMMIT.1,
-            reset_flags: self.boot.reset_flags,
-            fault: self.boot.fault,
+            reset_flags: self.platform.boot.reset_flags,
+            fault: self.platform.boot.fault,
             core_load_permille: load.map(|l| l.0),
             core_cycles_per_frame: load.and_then(|l| l.1),
             mcu_temp_cdeg: sensors.map(|s| s.0),
@@ -407,7 +415,7 @@ where
         };
         let mut input = buf.get(..n).unwrap_or(&[]);
         let mut p = app.pipeline.lock().await;
-        let c0 = app.cycles.map(|c| (c.now)());
+        let c0 = app.platform.cycles.map(|c| (c.now)());
         let now = Instant::now();
         p.set_uptime_ms(now.as_millis());
         p.set_arrival_us(now.as_micros());
@@ -415,7 +423,7 @@ where
             p.push_link(&mut input);
             app.route_all(&mut p);
         }
-        if let (Some(c), Some(c0)) = (app.cycles, c0) {
+        if let (Some(c), Some(c0)) = (app.platform.cycles, c0) {
             app.busy_cycles
                 .fetch_add((c.now)().wrapping_sub(c0), Ordering::Relaxed);
         }
@@ -580,7 +588,7 @@ pub fn load_calibration<F: NorFlash, B: core::borrow::BorrowMut<AllanBank>>(
                 "calibration: id {:?} from {:?} (seq {:?}, slots {:?})",
                 loaded.table.cal_id, source, loaded.seq, loaded.slots
             );
-            pipeline.load_calibration(loaded.table, source);
+            pipeline.load_calibration(&loaded.table, source);
         }
         Err(e) => error!("calibration: flash read failed ({:?}), factory default", e),
     }
@@ -706,7 +714,7 @@ where
     loop {
         ticker.next().await;
         // The ADC conversions before the pipeline is locked: the link task need not wait for them.
-        let sensors = app.mcu_sensors.and_then(|read| read());
+        let sensors = app.platform.mcu_sensors.and_then(|read| read());
         let mut p = app.pipeline.lock().await;
         let link = *p.link_counters();
         let now = Instant::now();
@@ -720,7 +728,7 @@ where
         let busy = app.busy_cycles.load(Ordering::Relaxed);
         // At the clock's rate now: a period across a clock switch is off by the switched part (one report).
         let core_hz = app.core_hz.load(Ordering::Relaxed);
-        let load = app.cycles.map(|_| {
+        let load = app.platform.cycles.map(|_| {
             let cycles = busy.wrapping_sub(last_busy);
             let period_cycles = now
                 .duration_since(last_at)

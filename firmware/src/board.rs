@@ -6,12 +6,17 @@
 //! | FPGA frames (RX)    | USART1     | PA10 (AF7)       | 2 Mbaud, DMA2 stream 2 ch 4, ring buffer  |
 //! | FPGA control (TX)   | USART1     | PA9  (AF7)       | DMA2 stream 7 ch 4                        |
 //! | CubeSat bus         | USART2     | PA3 RX / PA2 TX  | 115200 baud, RX DMA1 stream 5 ring, TX DMA1 stream 6 |
-//! | status LED          | GPIO       | PC13             | push-pull, toggled when the watchdog is fed |
-//! | watchdog            | IWDG       | -                | LSI ≈ 32 kHz, 8 s                         |
+//! | status LED          | GPIO       | PC13             | open drain, 2 MHz: sinks the LED's current (below) |
+//! | watchdog            | IWDG       | -                | LSI ≈ 32 kHz, 8 s, started before anything else |
 //! | calibration slots   | FLASH      | -                | sectors 1 (A) and 2 (B), 0x0800_4000, x32 erase |
 //! | time driver         | TIM5       | -                | embassy `time-driver-tim5`, 16 kHz tick   |
 //! | PPS in (optional)   | TIM2 CH1   | PA15 (AF1)       | input capture, rising edge, 32-bit counter at 1 MHz |
 //! | core clock          | RCC        | -                | HCLK 168 MHz streaming, 84 MHz in Idle (`CoreClock`) |
+//!
+//! The LED: PC13 is in the backup domain, so it may only sink ≤ 3 mA at ≤ 2 MHz, with at most one such pin
+//! sinking at a time (DS8626 §5.3.16, note on PC13–PC15); it must not source current. The board wires the LED from
+//! 3.3 V through a 1 kΩ resistor to PC13 (a red LED at ≈ 1.8 V: ≈ 1.5 mA), and the pin drives it open drain at
+//! `Speed::Low` (2 MHz): low lights it, high-impedance leaves it dark, and the pin never sources.
 //!
 //! The flash accelerator (prefetch, instruction and data caches), which `embassy_stm32::init` leaves off (its RCC
 //! init writes FLASH_ACR with the wait states only), is turned on here. Time: embassy's TIM5 driver counts 16-bit
@@ -25,9 +30,8 @@
 use core::cell::RefCell;
 use embassy_embedded_hal::flash::partition::BlockingPartition;
 use embassy_stm32::flash::{Bank1Region1, Blocking, Flash};
-use embassy_stm32::gpio::{Level, Output, Pull, Speed};
+use embassy_stm32::gpio::{Level, OutputOpenDrain, Pull, Speed};
 use embassy_stm32::mode::Async;
-use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::rcc::{
     AHBPrescaler, APBPrescaler, Hse, HseMode, Pll, PllMul, PllPDiv, PllPreDiv, PllQDiv, PllSource,
     Sysclk,
@@ -39,11 +43,11 @@ use embassy_stm32::timer::{
     low_level::CountingMode,
 };
 use embassy_stm32::usart::{self, RingBufferedUartRx, Uart, UartTx};
-use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dma, peripherals};
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
+use shared::pipeline::AllanBank;
 use static_cell::{ConstStaticCell, StaticCell};
 
 use firmware::layout::{
@@ -80,15 +84,13 @@ pub type FpgaTx = UartTx<'static, Async>;
 pub type BusRx = RingBufferedUartRx<'static>;
 /// Bus transmit: `embedded_io_async::Write`.
 pub type BusTx = UartTx<'static, Async>;
-/// The independent watchdog.
-pub type Watchdog = IndependentWatchdog<'static, IWDG>;
 /// `embedded_storage::nor_flash::NorFlash` over sectors 1 and 2 only.
 pub type CalibFlash = BlockingPartition<'static, NoopRawMutex, Flash32>;
 
 /// Flash region 1 (sectors 0–3), shared by its partitions (today only the calibration slots).
 static FLASH_REGION1: StaticCell<BlockingMutex<NoopRawMutex, RefCell<Flash32>>> = StaticCell::new();
-/// Status LED: `embedded_hal::digital::OutputPin`.
-pub type Led = Output<'static>;
+/// Status LED (open drain, see the module docs): `embedded_hal::digital::OutputPin`.
+pub type Led = OutputOpenDrain<'static>;
 
 /// Where the system clock comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, defmt::Format)]
@@ -137,6 +139,133 @@ impl firmware::app::CoreClock for CoreClock {
     }
 }
 
+/// IWDG prescaler (PR register value) and reload for [`WATCHDOG_TIMEOUT_US`] at the nominal 32 kHz LSI: the
+/// smallest prescaler 4·2^PR whose longest period (4096 counts) reaches the timeout, then the reload that gives it.
+const WATCHDOG_PR_RL: (u8, u16) = {
+    let mut pr = 0u8;
+    while pr < 6 && 4096 * (4u64 << pr) * 1_000_000 / 32_000 < WATCHDOG_TIMEOUT_US as u64 {
+        pr += 1;
+    }
+    let counts = WATCHDOG_TIMEOUT_US as u64 * 32_000 / 1_000_000 / (4u64 << pr);
+    assert!(counts >= 1 && counts <= 4096, "IWDG timeout out of range");
+    (pr, (counts - 1) as u16)
+};
+
+/// The independent watchdog, running from [`start_watchdog`] on: `pet` reloads it.
+pub struct Watchdog(());
+
+impl Watchdog {
+    /// Reloads the counter.
+    pub fn pet(&mut self) {
+        embassy_stm32::pac::IWDG
+            .kr()
+            .write(|w| w.set_key(IWDG_KEY_RELOAD));
+    }
+}
+
+const IWDG_KEY_RELOAD: embassy_stm32::pac::iwdg::vals::Key =
+    embassy_stm32::pac::iwdg::vals::Key::RESET;
+
+/// Starts the IWDG with its [`WATCHDOG_TIMEOUT_US`] timeout: the first thing `main` does, before the clocks, so that
+/// a hang anywhere in init (embassy waits for ready bits without a timeout) resets the board. Register access only
+/// (the IWDG runs from the LSI, which starting it turns on; it needs no bus clock). Freezes it while a debugger
+/// halts the core. RM0090 §21.3: start (0xCCCC), unlock PR/RLR (0x5555), write them, reload (0xAAAA).
+pub fn start_watchdog() -> Watchdog {
+    use embassy_stm32::pac::iwdg::vals::{Key, Pr};
+    use embassy_stm32::pac::{DBGMCU, IWDG};
+    DBGMCU.apb1fzr().modify(|w| w.set_iwdg(true));
+    let (pr, rl) = WATCHDOG_PR_RL;
+    IWDG.kr().write(|w| w.set_key(Key::START));
+    IWDG.kr().write(|w| w.set_key(Key::ENABLE));
+    IWDG.pr().write(|w| w.set_pr(Pr::from_bits(pr)));
+    IWDG.rlr().write(|w| w.set_rl(rl));
+    // The new values reach the LSI domain a few LSI cycles later (PVU/RVU set until then: ≈ 0.2 ms with the LSI's
+    // start); a reload before that would load the old reload value. Bounded: 2¹⁶ polls ≫ 0.2 ms at 16 MHz.
+    for _ in 0..(1u32 << 16) {
+        let sr = IWDG.sr().read();
+        if !sr.pvu() && !sr.rvu() {
+            break;
+        }
+    }
+    IWDG.kr().write(|w| w.set_key(IWDG_KEY_RELOAD));
+    Watchdog(())
+}
+
+/// The Allan accumulators of all 102 channels (57.9 KB): in the 64 KiB core-coupled RAM, which only the CPU
+/// reaches (the bank is never a DMA buffer) and which nothing else uses, so that SRAM keeps its room for the stack.
+/// `.ccmram` is NOLOAD (`memory.x`): cortex-m-rt neither zeroes nor initialises it; [`init_allan_ccm`] does.
+#[allow(unsafe_code)] // the link section, and the accesses in `AllanCcm` (SAFETY notes there)
+#[unsafe(link_section = ".ccmram.ALLAN")]
+static mut ALLAN: core::mem::MaybeUninit<AllanBank> = core::mem::MaybeUninit::uninit();
+static ALLAN_READY: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
+
+/// Zeroes the Allan bank in CCM RAM, in place, once (later calls do nothing). `main` calls it before it takes the
+/// `App` that holds the only [`AllanCcm`].
+pub fn init_allan_ccm() {
+    use core::sync::atomic::Ordering;
+    if ALLAN_READY.load(Ordering::Acquire) {
+        return;
+    }
+    #[allow(unsafe_code)]
+    // SAFETY: no reference to ALLAN exists yet: the only handle (`AllanCcm`) borrows it only after ALLAN_READY is
+    // set below, and this runs in `main` before any task or interrupt. Every bit pattern of the bank's fields is
+    // valid (it holds only integers: `AllanSet` is counts, sums and previous values), and all-zero is its empty
+    // state (`AllanBank::new()`).
+    unsafe {
+        core::ptr::addr_of_mut!(ALLAN)
+            .cast::<AllanBank>()
+            .write_bytes(0, 1)
+    };
+    ALLAN_READY.store(true, Ordering::Release);
+}
+
+/// The Allan bank in CCM RAM, as the pipeline holds it (`Pipeline<AllanCcm>`): a handle, so that the whole `App`
+/// can be built at compile time (a `const` cannot hold a `&'static mut`). There is one, in `main.rs`'s `APP`.
+pub struct AllanCcm(());
+
+impl AllanCcm {
+    /// The handle.
+    ///
+    /// # Safety
+    /// At most one may exist: it hands out `&mut` to the one bank. (It initialises the bank itself if `main` did
+    /// not, before its first borrow.)
+    #[allow(unsafe_code)]
+    pub const unsafe fn new() -> Self {
+        Self(())
+    }
+
+    fn bank(&self) -> *mut AllanBank {
+        // Never a borrow of uninitialised memory, even if `main` forgot the init (one load per Allan access, once
+        // per frame).
+        if !ALLAN_READY.load(core::sync::atomic::Ordering::Acquire) {
+            init_allan_ccm();
+        }
+        core::ptr::addr_of_mut!(ALLAN).cast::<AllanBank>()
+    }
+}
+
+impl core::borrow::Borrow<AllanBank> for AllanCcm {
+    fn borrow(&self) -> &AllanBank {
+        #[allow(unsafe_code)]
+        // SAFETY: initialised (`bank`); the one handle's `&self` borrow lives no longer than `&self`, and no `&mut`
+        // can coexist with it (that needs `&mut self` of the same unique handle).
+        unsafe {
+            &*self.bank()
+        }
+    }
+}
+
+impl core::borrow::BorrowMut<AllanBank> for AllanCcm {
+    fn borrow_mut(&mut self) -> &mut AllanBank {
+        #[allow(unsafe_code)]
+        // SAFETY: initialised (`bank`); the borrow is tied to `&mut self` of the unique handle, so it is the only
+        // reference to the bank while it lives.
+        unsafe {
+            &mut *self.bank()
+        }
+    }
+}
+
 /// Everything the application gets from the board.
 pub struct Board {
     pub clock: ClockSource,
@@ -144,7 +273,6 @@ pub struct Board {
     pub fpga_tx: FpgaTx,
     pub bus_rx: BusRx,
     pub bus_tx: BusTx,
-    pub watchdog: Watchdog,
     pub calib: CalibFlash,
     pub led: Led,
     pub cycles: firmware::app::CycleCounter,
@@ -262,12 +390,6 @@ pub fn init() -> Board {
     let mut bus_rx = bus_rx.into_ring_buffered(BUS_RX_RING.take());
     bus_rx.start_uart();
 
-    // Freeze the watchdog while a debugger halts the core.
-    embassy_stm32::pac::DBGMCU
-        .apb1fzr()
-        .modify(|w| w.set_iwdg(true));
-    let watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
-
     let region1 = Flash::new_blocking(p.FLASH)
         .into_blocking_regions()
         .bank1_region1;
@@ -275,7 +397,7 @@ pub fn init() -> Board {
     // Sectors 1–2; the partition checks at boot that both ends are on sector boundaries.
     let calib = BlockingPartition::new(region1, CAL_FLASH_BASE - REGION1_BASE, CALIB_LEN);
 
-    let led = Output::new(p.PC13, Level::High, Speed::Low);
+    let led = OutputOpenDrain::new(p.PC13, Level::High, Speed::Low);
 
     let adc = embassy_stm32::adc::Adc::new(p.ADC1);
     // Both internal channels are behind one switch (TSVREFE); the returned handles are unit values.
@@ -312,7 +434,6 @@ pub fn init() -> Board {
         fpga_tx,
         bus_rx,
         bus_tx,
-        watchdog,
         calib,
         led,
         cycles,

@@ -13,7 +13,7 @@ use embassy_executor::Spawner;
 use embassy_time::Duration;
 use firmware::app::{self, App};
 use shared::bus::BusConfig;
-use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
+use shared::pipeline::PipelineConfig;
 use shared::storage::CalStore;
 use static_cell::{ConstStaticCell, StaticCell};
 
@@ -21,16 +21,22 @@ use defmt_rtt as _;
 #[cfg(debug_assertions)]
 use panic_probe as _;
 
-/// The tasks' shared state, as the MCU holds it.
-type FwApp = App<&'static mut AllanBank>;
+/// The tasks' shared state, as the MCU holds it: the Allan bank in CCM RAM.
+type FwApp = App<board::AllanCcm>;
 
 /// Release builds reset on a panic (after logging it and recording it for the next boot's housekeeping); the core
 /// never panics on input, so this is a last resort.
 #[cfg(not(debug_assertions))]
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
-    defmt::error!("panic: {}", defmt::Display2Format(info));
+    use core::sync::atomic::{AtomicBool, Ordering};
+    static PANICKED: AtomicBool = AtomicBool::new(false);
     fault::record(shared::telemetry::FaultKind::Panic, 0, 0);
+    // Logged once: a panic inside the logger (defmt-rtt panics on a re-entrant acquire) comes back here, and
+    // logging again would recurse until the stack overflows (`tools/fw-check/stack.py` found the cycle).
+    if !PANICKED.swap(true, Ordering::Relaxed) {
+        defmt::error!("panic: {}", defmt::Display2Format(info));
+    }
     cortex_m::peripheral::SCB::sys_reset()
 }
 
@@ -39,13 +45,21 @@ const WATCHDOG_PERIOD: Duration = Duration::from_millis(250);
 /// Housekeeping periods (1 s each) between log lines of link statistics.
 const LOG_EVERY: u32 = 10;
 
-/// The Allan accumulators of all 102 channels (59.6 KiB, zero-initialised: `.bss`).
-static ALLAN: ConstStaticCell<AllanBank> = ConstStaticCell::new(AllanBank::new());
-static APP: StaticCell<FwApp> = StaticCell::new();
+/// The whole state of the tasks (14 KiB), built at compile time (`.data`): never on the stack.
+#[allow(unsafe_code)] // `AllanCcm::new`
+static APP: ConstStaticCell<FwApp> = ConstStaticCell::new(App::new(
+    PipelineConfig::DEFAULT,
+    // SAFETY: the only handle; `main` initialises the bank before it takes `APP`.
+    unsafe { board::AllanCcm::new() },
+    BusConfig::DEFAULT,
+    app::Platform::NONE,
+));
 static STORE: StaticCell<CalStore<board::CalibFlash>> = StaticCell::new();
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
+    // First of all, so that a hang anywhere in init (a crystal that stops while embassy waits for it) resets.
+    let wdt = board::start_watchdog();
     let boot = app::BootInfo {
         reset_flags: board::take_reset_flags(),
         fault: fault::take(),
@@ -58,19 +72,22 @@ async fn main(spawner: Spawner) {
         boot.fault
     );
 
-    let mut pipeline = Pipeline::new(PipelineConfig::DEFAULT, ALLAN.take());
+    // The state was built at compile time (`APP`) and the Allan bank is zeroed in place in CCM RAM: no large frame
+    // on the stack (`docs/firmware.md`, stack; the CI's stack check and boot test hold it to that).
+    board::init_allan_ccm();
+    let app = APP.take();
+    app.set_platform(app::Platform {
+        boot,
+        cycles: Some(b.cycles),
+        mcu_sensors: Some(board::mcu_sensors),
+    });
     let store = STORE.init(defmt::unwrap!(
         CalStore::new(b.calib).map_err(|_| "calibration flash geometry")
     ));
-    app::load_calibration(store, &mut pipeline);
-    let app: &'static FwApp = APP.init(
-        App::new(pipeline, BusConfig::DEFAULT)
-            .with_boot(boot)
-            .with_cycle_counter(b.cycles)
-            .with_mcu_sensors(board::mcu_sensors),
-    );
+    app::load_calibration(store, app.pipeline.get_mut());
+    let app: &'static FwApp = app;
 
-    spawner.spawn(defmt::unwrap!(watchdog(app, b.watchdog, b.led)));
+    spawner.spawn(defmt::unwrap!(watchdog(app, wdt, b.led)));
     spawner.spawn(defmt::unwrap!(fpga_link(app, b.fpga_rx)));
     spawner.spawn(defmt::unwrap!(fpga_ctrl(app, b.fpga_tx, b.core_clock)));
     spawner.spawn(defmt::unwrap!(bus_rx(app, b.bus_rx)));
@@ -107,7 +124,6 @@ async fn storage(app: &'static FwApp, store: &'static mut CalStore<board::CalibF
 
 #[embassy_executor::task]
 async fn watchdog(app: &'static FwApp, mut wdt: board::Watchdog, mut led: board::Led) {
-    wdt.unleash();
     app::watchdog_loop(app, WATCHDOG_PERIOD, || wdt.pet(), &mut led).await
 }
 

@@ -621,7 +621,7 @@ fn an_fpga_restart_keeps_the_outage_on_the_time_line() {
 /// calibration in RAM, which reloads the stored table after a bit flip.
 #[test]
 fn housekeeping_reports_the_board_and_repairs_a_corrupted_calibration() {
-    use firmware::app::{BootInfo, FW_COMMIT};
+    use firmware::app::{BootInfo, FW_COMMIT, Platform};
     use firmware::sim::line::SimRxError;
     use shared::telemetry::{FaultKind, FaultRecord, StoreOutcome};
     let fault = FaultRecord {
@@ -629,15 +629,18 @@ fn housekeeping_reports_the_board_and_repairs_a_corrupted_calibration() {
         pc: 0x0800_C123,
         cfsr: 0x0000_8200,
     };
-    let Sat { app, board, store } = Sat::fresh();
-    let mut sat = Sat {
-        app: app.with_boot(BootInfo {
-            reset_flags: 1 << 4, // IWDG
-            fault: Some(fault),
-        }),
-        board,
-        store,
-    };
+    let mut sat = Sat::boot_on(
+        simflash::erased(),
+        Some(firmware::layout::BUS_BAUD),
+        PipelineConfig::DEFAULT,
+        Platform {
+            boot: BootInfo {
+                reset_flags: 1 << 4, // IWDG
+                fault: Some(fault),
+            },
+            ..Platform::default()
+        },
+    );
     let mut ground = Ground::new();
     let table7 = table(7);
     sat.run(MINUTE, async |app, board| {

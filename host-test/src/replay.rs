@@ -24,7 +24,7 @@ pub type HostPipeline = Pipeline<Box<AllanBank>>;
 pub fn host_pipeline(config: PipelineConfig, cal: CalibrationTable<GROUPS>) -> HostPipeline {
     let mut p = Pipeline::new(config, Box::new(AllanBank::new()));
     if cal != CalibrationTable::factory() {
-        p.load_calibration(cal, shared::telemetry::CalSource::Uploaded);
+        p.load_calibration(&cal, shared::telemetry::CalSource::Uploaded);
     }
     p
 }

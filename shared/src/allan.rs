@@ -243,9 +243,12 @@ impl<const C: usize> AllanSet<C> {
         }
     }
 
-    /// Forgets everything.
+    /// Forgets everything, in place: the levels are zeroed where they lie. (`*self = Self::new()` would build the
+    /// whole set on the stack first: 58 KB for the pipeline's bank, more than the MCU's stack.)
     pub fn reset(&mut self) {
-        *self = Self::new();
+        self.samples = 0;
+        self.zero.fill(Level0::ZERO);
+        self.higher.iter_mut().for_each(|h| h.fill(Level::ZERO));
     }
 
     /// Samples taken so far (by every channel).

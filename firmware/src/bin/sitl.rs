@@ -25,7 +25,7 @@ use firmware::sim::flash::{FileFlash, Stalling};
 use firmware::sim::node::{self, Board};
 use shared::bus::BusConfig;
 use shared::bus::csp::CspVersion;
-use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
+use shared::pipeline::{AllanBank, PipelineConfig};
 use shared::storage::CalStore;
 use shared::wire::FrameDecoder;
 
@@ -99,17 +99,21 @@ fn run(args: &Args) -> Result<(), String> {
     ctrlc::set_handler(|| STOP.signal(())).map_err(|e| format!("signal handler: {e}"))?;
 
     let config = PipelineConfig::DEFAULT;
-    let mut pipeline = Pipeline::new(config, Box::new(AllanBank::new()));
     // Erases and programs stall the tasks for the F405's worst-case times, as on the MCU.
     let mut store = CalStore::new(Stalling(flash)).map_err(|e| format!("flash geometry: {e:?}"))?;
-    app::load_calibration(&mut store, &mut pipeline);
     let bus_config = BusConfig {
         version,
         addr: args.addr,
         ground_addr: args.ground_addr,
         ..BusConfig::DEFAULT
     };
-    let app = App::new(pipeline, bus_config);
+    let mut app = App::new(
+        config,
+        Box::new(AllanBank::new()),
+        bus_config,
+        app::Platform::default(),
+    );
+    app::load_calibration(&mut store, app.pipeline.get_mut());
     log::info!(
         "sitl: {} bytes of frames ({}), bus {} (CSP v{}), flash {}",
         frames.len(),

@@ -13,7 +13,7 @@ use core::future::Future;
 
 use embassy_futures::select::{Either, select};
 use embassy_time::Duration;
-use firmware::app::{self, App};
+use firmware::app::{self, App, Platform};
 use firmware::sim::clock::{self, Mode};
 use firmware::sim::flash::{self as simflash, CalFlashModel, Stalling};
 use firmware::sim::node::{self, Board};
@@ -22,7 +22,7 @@ use shared::bus::kiss::KissDecoder;
 use shared::bus::{BusConfig, MAX_WIRE_FRAME};
 use shared::calib::CalibrationTable;
 use shared::crc::crc32c;
-use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
+use shared::pipeline::{AllanBank, PipelineConfig};
 use shared::storage::CalStore;
 use shared::telemetry::{
     CAL_CHUNK_MAX, Command, CommandEnvelope, MAX_MESSAGE_LEN, Telemetry, decode, encode,
@@ -48,11 +48,26 @@ impl Sat {
 
     /// As [`Self::boot`], with a pipeline configuration.
     pub fn boot_with(flash: CalFlashModel, bus_baud: Option<u32>, config: PipelineConfig) -> Self {
-        let mut pipeline = Pipeline::new(config, Box::new(AllanBank::new()));
+        Self::boot_on(flash, bus_baud, config, Platform::default())
+    }
+
+    /// As [`Self::boot_with`], on a board that offers `platform` (boot facts, cycle counter, MCU sensors).
+    pub fn boot_on(
+        flash: CalFlashModel,
+        bus_baud: Option<u32>,
+        config: PipelineConfig,
+        platform: Platform,
+    ) -> Self {
+        let mut app = App::new(
+            config,
+            Box::new(AllanBank::new()),
+            BusConfig::DEFAULT,
+            platform,
+        );
         let mut store = CalStore::new(Stalling(flash)).expect("flash geometry");
-        app::load_calibration(&mut store, &mut pipeline);
+        app::load_calibration(&mut store, app.pipeline.get_mut());
         Self {
-            app: App::new(pipeline, BusConfig::DEFAULT),
+            app,
             board: Board::with_bus_baud(bus_baud),
             store,
         }

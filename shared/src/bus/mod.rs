@@ -77,6 +77,16 @@ pub struct BusCounters {
     pub ignored: u32,
 }
 
+impl BusCounters {
+    /// All counters zero (`Default`, usable in `const`).
+    pub const ZERO: Self = Self {
+        packets: 0,
+        kiss_errors: 0,
+        csp_errors: 0,
+        ignored: 0,
+    };
+}
+
 /// The sans-IO bus endpoint.
 #[derive(Clone, Debug)]
 pub struct BusNode {

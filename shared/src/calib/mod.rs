@@ -53,6 +53,14 @@ pub struct RawCounts {
 }
 
 impl RawCounts {
+    /// All channels zero (`Default`, usable in `const`).
+    pub const ZERO: Self = Self {
+        gyro: [0; GYRO_RAW],
+        accel: [0; ACCEL_RAW],
+    };
+}
+
+impl RawCounts {
     /// The 7 ADC codes of an FPGA frame group (`wire::frame::RAW_*` order).
     pub fn from_adc(codes: &crate::wire::frame::RawGroup) -> Self {
         let [a, b, c, d, e, f, g] = codes.map(i32::from);

@@ -232,6 +232,23 @@ impl<const G: usize> Fusion<G> {
         }
     }
 
+    /// Forgets the history (as [`Self::new`] with the parameters in force), in place: no second fusion state is
+    /// built on the stack.
+    pub fn reset(&mut self) {
+        self.axes.fill(AxisState::NEW);
+        self.scale.fill(AxisScale::NEW);
+        self.raw.fill(RawWatch::NEW);
+        self.faults.fill(
+            [FaultCounts {
+                saturated: 0,
+                stuck: 0,
+                outlier: 0,
+            }; 2],
+        );
+        self.samples = 0;
+        self.weights_ready = false;
+    }
+
     /// The parameters in force.
     pub fn config(&self) -> &FusionConfig {
         &self.config

@@ -600,7 +600,7 @@ fn a_bit_flip_in_the_calibration_in_ram_is_detected() {
     assert!(p.calibration_intact());
     let mut t = CalibrationTable::<GROUPS>::factory();
     t.cal_id = 3;
-    p.load_calibration(t, CalSource::Uploaded);
+    p.load_calibration(&t, CalSource::Uploaded);
     assert!(p.calibration_intact());
     for bit in [0, 7, 31] {
         p.inject_calibration_bit_flip(5, bit);
@@ -641,7 +641,7 @@ fn mode_and_groups_excluded_by_hand() {
         },
     );
     assert_eq!(ack(&out).result, Ok(()));
-    p.load_calibration(CalibrationTable::factory(), CalSource::Uploaded);
+    p.load_calibration(&CalibrationTable::factory(), CalSource::Uploaded);
     assert_eq!(
         p.fusion().config().excluded,
         [0b101, 1 << 15],

@@ -189,6 +189,11 @@ impl<F: NorFlash> CalStore<F> {
 
     /// Loads the newest valid calibration (by [`is_newer`]), or the factory default if no slot holds one.
     /// `scratch` must hold an encoded table (`calib::encoded_len_max(G)` bytes).
+    ///
+    /// Never inlined: it holds up to two tables (≈ 1.9 KB each for 16 groups) while it compares the slots, and its
+    /// caller holds the scratch and the result; in one frame they exceeded the MCU's 8 KiB limit per frame
+    /// (`docs/firmware.md`, stack).
+    #[inline(never)]
     pub fn load<const G: usize>(&mut self, scratch: &mut [u8]) -> Result<Loaded<G>, F::Error> {
         let mut slots = [SlotState::Empty; 2];
         let mut best: Option<(u32, CalibrationTable<G>)> = None;

@@ -284,7 +284,7 @@ fn golden_run(config: PipelineConfig, n: usize, seed: u64) -> u64 {
         h: Fnv::new(),
         seen: Seen::default(),
     };
-    r.p.load_calibration(calibration(seed), CalSource::Stored);
+    r.p.load_calibration(&calibration(seed), CalSource::Stored);
     let mut rng = Rng::seed_from_u64(seed ^ 0x5555);
     let combos = [
         (FusionMode::InverseVariance, true),
@@ -315,7 +315,7 @@ fn golden_run(config: PipelineConfig, n: usize, seed: u64) -> u64 {
             9_500 => r.command(4, Command::SetOutputRate(1)),
             10_200 => r.command(5, Command::SetOutputRate(32)),
             19_000 => {
-                r.p.load_calibration(calibration(seed + 1), CalSource::Uploaded)
+                r.p.load_calibration(&calibration(seed + 1), CalSource::Uploaded)
             }
             21_000 => r.command(6, Command::AllanReset),
             _ => {}
