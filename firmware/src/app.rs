@@ -21,7 +21,7 @@
 
 use core::cell::Cell;
 use core::num::NonZeroU64;
-use core::sync::atomic::{AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_futures::select::{Either, select};
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
@@ -29,7 +29,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_sync::mutex::Mutex;
 use embassy_sync::signal::Signal;
-use embassy_time::{Duration, Instant, Ticker, with_timeout};
+use embassy_time::{Duration, Instant, Ticker, Timer, with_timeout};
 use embedded_hal::digital::OutputPin;
 use embedded_io_async::{Read, Write};
 use embedded_storage::nor_flash::NorFlash;
@@ -37,13 +37,14 @@ use shared::bus::csp::CspHeader;
 use shared::bus::{BusConfig, BusCounters, BusEvent, BusNode, MAX_PAYLOAD, MAX_WIRE_FRAME};
 use shared::calib::encoded_len_max;
 use shared::pipeline::{AllanBank, Output, Pipeline, PipelineConfig};
-use shared::storage::CalStore;
+use shared::storage::{CalStore, StoreError};
 use shared::telemetry::{
     CalSource, FaultRecord, HousekeepingReport, RxErrorCounts, StoreOutcome, Telemetry,
 };
 use shared::wire::FpgaControl;
 use shared::wire::frame::GROUPS;
 
+use crate::layout::FPGA_RX_RING_LEN;
 use crate::log::Loggable;
 
 type Raw = CriticalSectionRawMutex;
@@ -136,9 +137,11 @@ pub struct ShellCounters {
     pub housekeeping: u32,
     /// Times the calibration in RAM failed its CRC check and was reloaded from flash.
     pub cal_ram_repairs: u32,
+    /// Times the core clock stayed full after a stop because FPGA bytes kept arriving.
+    pub clock_kept: u32,
 }
 
-struct AtomicCounters([AtomicU32; 12]);
+struct AtomicCounters([AtomicU32; 13]);
 
 #[derive(Clone, Copy)]
 enum Counter {
@@ -154,6 +157,7 @@ enum Counter {
     SilentHealth,
     Housekeeping,
     CalRamRepairs,
+    ClockKept,
 }
 
 /// What the board knows at boot, reported in every [`HousekeepingReport`].
@@ -238,6 +242,10 @@ pub struct App<B> {
     platform: Platform,
     /// Cycles the link task spent processing frames (wrapping).
     busy_cycles: AtomicU32,
+    /// Bytes the link task has read (wrapping): `fpga_ctrl_loop` watches it for a quiet line.
+    link_bytes: AtomicU32,
+    /// A calibration store ran (no task ran meanwhile): the link task drops what its ring holds.
+    link_stale: AtomicBool,
     /// The core clock's rate, Hz, as `fpga_ctrl_loop` last set it (0: not yet).
     core_hz: AtomicU32,
 }
@@ -257,11 +265,13 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
             persist: Signal::new(),
             reload: Signal::new(),
             progress: [const { AtomicU32::new(0) }; 3],
-            counters: AtomicCounters([const { AtomicU32::new(0) }; 12]),
+            counters: AtomicCounters([const { AtomicU32::new(0) }; 13]),
             bus_counters: BlockingMutex::new(Cell::new(BusCounters::ZERO)),
             last_store: BlockingMutex::new(Cell::new(StoreOutcome::None)),
             platform,
             busy_cycles: AtomicU32::new(0),
+            link_bytes: AtomicU32::new(0),
+            link_stale: AtomicBool::new(false),
             core_hz: AtomicU32::new(0),
         }
     }
@@ -304,6 +314,7 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
             silent_health: c(Counter::SilentHealth),
             housekeeping: c(Counter::Housekeeping),
             cal_ram_repairs: c(Counter::CalRamRepairs),
+            clock_kept: c(Counter::ClockKept),
         }
     }
 
@@ -400,7 +411,18 @@ where
     let mut buf = [0u8; LINK_CHUNK];
     loop {
         app.tick(Task::Link);
-        let n = match with_timeout(IDLE_TIMEOUT, rx.read(&mut buf)).await {
+        let read = with_timeout(IDLE_TIMEOUT, rx.read(&mut buf)).await;
+        if app.link_stale.swap(false, Ordering::AcqRel) {
+            // A calibration store ran: no task ran for up to `STORE_STALL_MAX_US`, long enough for the DMA to lap
+            // the ring many times, and what it holds now are bytes of different laps (embassy's ring buffer notices
+            // a lap only when its position happens to be past the reader's). Drop them all, with the decoder's
+            // partial frame, and count one overrun; the next frame's sequence gap counts the frames lost.
+            let dropped = drain(rx, &mut buf).await;
+            app.pipeline.lock().await.link_discarded();
+            warn!("fpga link: {:?} bytes dropped after a flash stall", dropped);
+            continue;
+        }
+        let n = match read {
             Err(_idle) => continue,
             Ok(Ok(n)) => n,
             Ok(Err(e)) => {
@@ -413,6 +435,8 @@ where
                 continue;
             }
         };
+        app.link_bytes
+            .fetch_add(u32::try_from(n).unwrap_or(u32::MAX), Ordering::Relaxed);
         let mut input = buf.get(..n).unwrap_or(&[]);
         let mut p = app.pipeline.lock().await;
         let c0 = app.platform.cycles.map(|c| (c.now)());
@@ -428,6 +452,19 @@ where
                 .fetch_add((c.now)().wrapping_sub(c0), Ordering::Relaxed);
         }
     }
+}
+
+/// Reads and drops what `rx` holds now, without waiting for more (at most one ring's worth, so that a line that
+/// keeps delivering cannot hold the task here); returns the bytes dropped.
+async fn drain<R: Read>(rx: &mut R, buf: &mut [u8]) -> usize {
+    let mut dropped = 0usize;
+    while dropped < FPGA_RX_RING_LEN {
+        match with_timeout(Duration::from_ticks(0), rx.read(buf)).await {
+            Ok(Ok(n)) if n > 0 => dropped = dropped.saturating_add(n),
+            _ => break,
+        }
+    }
+    dropped
 }
 
 /// Bus bytes in: commands go to the pipeline, and their acks (with any report the command asked for) to the reply
@@ -542,10 +579,12 @@ where
 }
 
 /// Control messages to the FPGA, and the core clock that goes with the stream: full at boot and raised before a
-/// `SetStreaming(true)` goes out; lowered once a `SetStreaming(false)` has left the transmitter (the FPGA link's
-/// UART keeps its clock either way, but a message is not sent across the switch).
+/// `SetStreaming(true)` goes out; lowered once a `SetStreaming(false)` has left the transmitter and the FPGA line
+/// is quiet ([`LINE_QUIET`]: between the two prescaler writes USART1's clock is briefly halved, which would garble
+/// a frame's tail), kept full (and counted) if frames still arrive after [`LINE_QUIET_WAIT`].
 pub async fn fpga_ctrl_loop<B, W>(app: &App<B>, tx: &mut W, clock: &mut impl CoreClock) -> !
 where
+    B: core::borrow::BorrowMut<AllanBank>,
     W: Write,
     W::Error: Loggable,
 {
@@ -564,10 +603,40 @@ where
             warn!("fpga: control tx error {:?}", e);
         }
         if msg == FpgaControl::SetStreaming(false) {
-            app.core_hz.store(clock.set_low(true), Ordering::Relaxed);
+            // Only on a quiet line: the FPGA may still send the rest of a frame, and while the prescalers change,
+            // USART1's clock is briefly halved (board::CoreClock).
+            if line_quiet(app).await {
+                app.core_hz.store(clock.set_low(true), Ordering::Relaxed);
+            } else {
+                app.count(Counter::ClockKept);
+                warn!("fpga: frames still arriving after the stop; core clock kept");
+            }
         }
         info!("core clock: {:?} Hz", app.core_hz.load(Ordering::Relaxed));
     }
+}
+
+/// Time with no FPGA byte read that makes the line quiet: three frame periods at the default 604.8 frames/s (a
+/// frame takes 1.2 ms on the line, and the link task reads within the idle-line interrupt of its end).
+pub const LINE_QUIET: Duration = Duration::from_millis(5);
+/// Longest the clock switch waits for a quiet line after the FPGA was told to stop.
+pub const LINE_QUIET_WAIT: Duration = Duration::from_millis(200);
+
+/// Waits until no FPGA byte was read for [`LINE_QUIET`]; `false` if that did not happen within [`LINE_QUIET_WAIT`].
+async fn line_quiet<B>(app: &App<B>) -> bool {
+    let deadline = Instant::now()
+        .checked_add(LINE_QUIET_WAIT)
+        .unwrap_or(Instant::MAX);
+    let mut seen = app.link_bytes.load(Ordering::Relaxed);
+    while Instant::now() < deadline {
+        Timer::after(LINE_QUIET).await;
+        let now = app.link_bytes.load(Ordering::Relaxed);
+        if now == seen {
+            return true;
+        }
+        seen = now;
+    }
+    false
 }
 
 /// Loads the stored calibration into the pipeline (newest valid record, else the factory default).
@@ -615,13 +684,18 @@ where
                 continue;
             }
         };
-        // The store is synchronous (the CPU stalls on the erase anyway), so the lock is held through it and the
-        // table is not copied into this task's state (1.8 KiB of RAM).
+        // The store is synchronous (the CPU stalls on the erase and the word programs anyway), so the lock is held
+        // through it and the table is not copied into this task's state (1.8 KiB of RAM); no task runs until it
+        // returns (`layout::STORE_STALL_MAX_US`: the bus ring holds twice that, the link task drops its ring).
         let (cal_id, result) = {
             let pipeline = app.pipeline.lock().await;
             let table = pipeline.calibration();
             (table.cal_id, store.store(table, &mut scratch))
         };
+        // Unless it failed before touching the flash, the store stalled every task (`layout::STORE_STALL_MAX_US`).
+        if !matches!(result, Err(StoreError::Encode | StoreError::Geometry)) {
+            app.link_stale.store(true, Ordering::Release);
+        }
         let outcome = match result {
             Ok(seq) => {
                 app.count(Counter::CalStores);

@@ -487,6 +487,67 @@ fn idle_stops_the_stream_and_lowers_the_core_clock() {
     assert_eq!(seen.last().map(|s| s.0), Some(Mode::Stream), "{seen:?}");
 }
 
+/// The core clock is lowered only on a quiet FPGA line: while frames still arrive after the stop (an FPGA that
+/// finishes late), it stays at full speed; once no byte came for `LINE_QUIET` it is halved. Frames that never stop
+/// within `LINE_QUIET_WAIT` keep the full clock, counted.
+#[test]
+fn the_core_clock_is_lowered_only_on_a_quiet_fpga_line() {
+    use firmware::app::{LINE_QUIET, LINE_QUIET_WAIT};
+    use shared::telemetry::Mode;
+    const FULL_HZ: u32 = firmware::sim::node::SimCoreClock::FULL_HZ;
+    // (stream after the stop, expected: lowered)
+    for (tail, lowered) in [
+        (LINE_QUIET_WAIT / 2, true),
+        (LINE_QUIET_WAIT + Duration::from_millis(100), false),
+    ] {
+        let mut sat = Sat::fresh();
+        let ground = Ground::new();
+        let start = Duration::from_millis(300);
+        let log = frames(((start + tail).as_micros() / frame_period().as_micros()) as usize);
+        let (samples, last_frame_at, kept) = sat.run(MINUTE, async |app, board| {
+            let t0 = Instant::now();
+            let fpga = async {
+                common::fpga_play(board, &log).await;
+                Instant::now()
+            };
+            let ground_side = async {
+                Timer::after(start).await;
+                ground.send(board, 1, Command::SetMode(Mode::Idle));
+                let mut samples = Vec::new();
+                while Instant::now()
+                    < t0 + start + tail + LINE_QUIET_WAIT + Duration::from_millis(100)
+                {
+                    Timer::after(Duration::from_millis(1)).await;
+                    samples.push((
+                        Instant::now(),
+                        board.core_hz.load(std::sync::atomic::Ordering::Relaxed),
+                    ));
+                }
+                samples
+            };
+            let (last, samples) = embassy_futures::join::join(fpga, ground_side).await;
+            (samples, last, app.counters().clock_kept)
+        });
+        let switched = samples.iter().find(|s| s.1 != FULL_HZ).map(|s| s.0);
+        if lowered {
+            let at = switched.expect("the clock was lowered");
+            assert!(
+                at >= last_frame_at + LINE_QUIET,
+                "lowered at {at:?}, last frame {last_frame_at:?}"
+            );
+            assert!(
+                at <= last_frame_at + 3 * LINE_QUIET,
+                "lowered at {at:?}, last frame {last_frame_at:?}"
+            );
+            assert_eq!(samples.last().map(|s| s.1), Some(FULL_HZ / 2));
+            assert_eq!(kept, 0);
+        } else {
+            assert_eq!(switched, None, "frames never stopped in time: full clock");
+            assert_eq!(kept, 1);
+        }
+    }
+}
+
 /// A CSP ping to our address is answered with the same payload; a ping to another address is ignored.
 #[test]
 fn pings_are_echoed() {
@@ -569,6 +630,8 @@ fn a_store_during_streaming_loses_at_most_the_documented_frames_and_no_command()
         lost,
         "every lost frame counted"
     );
+    // The ring's contents after the stall were dropped and counted (`app::link_loop`).
+    assert!(h.link.overruns >= 1, "{:?}", h.link);
     // Time runs on across the gap: the last report starts where the log's frames put it (the frame clock counts
     // the lost frames), within one output interval.
     let last = last_fused(&ground.telemetry);

@@ -89,6 +89,8 @@ fn main() -> ! {
 
 /// Runs `config` over the benchmark stream and reports instructions per frame.
 fn count(name: &str, config: PipelineConfig, bank: &mut AllanBank) {
+    // Each configuration starts from an empty bank (`Pipeline::new` takes it as it is).
+    bank.0.reset();
     let mut pipeline = Pipeline::new(config, &mut *bank);
     let mut frames = BenchFrames::new();
     let mut batch = [0u8; FRAME_LEN * BATCH];

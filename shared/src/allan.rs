@@ -422,6 +422,36 @@ mod tests {
         assert_eq!(acc.levels().count(), 12); // 2^12 = 4096 ≤ 5000 / 2 fails; 2^11 · 2 ≤ 5000 → k = 0 … 11
     }
 
+    /// `reset` in place forgets everything: after it, the same samples give what a new set gives (levels written
+    /// by the first run at every depth, so a level the reset missed would show).
+    #[test]
+    fn reset_in_place_equals_a_new_set() {
+        let xs: Vec<i32> = (0..3000i32)
+            .map(|i| i.wrapping_mul(7919) % 10_007 - 5_000)
+            .collect();
+        let mut used = AllanSet::<3>::new();
+        for &x in &xs {
+            assert!(used.push_parts(&[x, -x], &[x / 3]));
+        }
+        used.reset();
+        assert_eq!(used.samples(), 0);
+        assert_eq!(used.levels(0).count(), 0);
+        let mut fresh = AllanSet::<3>::new();
+        for &x in xs.iter().rev().take(1500) {
+            assert!(used.push_parts(&[x, 2 * x], &[-x]));
+            assert!(fresh.push_parts(&[x, 2 * x], &[-x]));
+        }
+        for ch in 0..3 {
+            for k in 0..LEVELS {
+                assert_eq!(
+                    used.level(ch, k),
+                    fresh.level(ch, k),
+                    "channel {ch} level {k}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn white_noise_avar_halves_per_octave() {
         // Alternating ±1000: σ²(τ₀) = (2000)² / 2 = 2e6; every longer level averages to 0.

@@ -448,6 +448,13 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         self.decoder.note_overruns(n);
     }
 
+    /// The platform dropped the link bytes it had buffered (after a CPU stall long enough for its DMA ring to lap,
+    /// the ring holds bytes of different laps): the decoder's partial frame is forgotten and one overrun counted;
+    /// the next frame's sequence gap counts the frames lost.
+    pub fn link_discarded(&mut self) {
+        self.decoder.discard_partial();
+    }
+
     /// Adds telemetry messages the platform could not send (its bus queue was full); reported in health as
     /// `telemetry_dropped`, with the pipeline's own outbox overflows.
     pub fn note_telemetry_dropped(&mut self, n: u32) {

@@ -3,7 +3,8 @@
 
 Usage:
     python3 tools/fw-check/stack.py target/thumbv7em-none-eabihf/fw/firmware \
-        [--json out.json] [--markdown] [--max-percent 75] [--max-frame 8192] [--allow-recursion SUBSTRING ...]
+        [--json out.json] [--markdown] [--max-percent 75] [--max-frame 8192] [--min-region BYTES]
+        [--allow-recursion SUBSTRING ...]
 
 Exit status: 0 when every check passes, 1 when a check fails (the reasons are printed last), 2 on a usage or tool
 error (no ELF, no llvm-objdump, no symbol table). Needs Python 3.11, pyelftools and llvm-objdump (Debian: llvm).
@@ -1429,6 +1430,9 @@ def main(argv=None) -> int:
     ap.add_argument("--markdown", action="store_true", help="also print a Markdown table for the docs")
     ap.add_argument("--max-percent", type=float, default=75.0, help="limit on the total, %% of the region (75)")
     ap.add_argument("--max-frame", type=int, default=8192, help="limit on any single frame, bytes (8192)")
+    ap.add_argument("--min-region", type=int, default=0, metavar="BYTES",
+                    help="fail if the stack region is smaller (the firmware's layout::MCU_STACK_LEN, which the host "
+                         "tests run their tasks on)")
     ap.add_argument("--allow-recursion", action="append", default=[], metavar="SUBSTRING",
                     help="accept recursion whose every cycle passes through a function whose name contains "
                          "SUBSTRING (repeatable); its bound is then one pass through the cycles")
@@ -1443,6 +1447,10 @@ def main(argv=None) -> int:
         print(e, file=sys.stderr)
         return 2
     rep = analyse(prog, args.allow_recursion, args.max_percent, args.max_frame)
+    if rep["region"]["bytes"] is not None and rep["region"]["bytes"] < args.min_region:
+        rep["ok"] = False
+        rep.setdefault("errors", []).append(
+            f"stack region {rep['region']['bytes']} B is smaller than --min-region {args.min_region} B")
     with open(args.elf, "rb") as fh:
         rep = {"elf": args.elf, "sha256": hashlib.sha256(fh.read()).hexdigest(), **rep}
     print(text_report(rep, args.elf))

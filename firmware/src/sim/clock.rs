@@ -43,6 +43,8 @@ pub enum RunError {
     TimeLimit,
     /// No task can ever run again: nothing is ready, no timer is pending and no other thread can wake it.
     Deadlock,
+    /// The thread to run on could not be started.
+    Thread,
 }
 
 struct Clock {
@@ -134,6 +136,36 @@ pub fn run<F: Future>(
     let result = run_inner(limit.as_ticks(), fut);
     CLOCK.with(|c| c.replace(previous));
     result
+}
+
+/// [`run`] of the future `make` builds, on a thread whose stack is the flight build's stack region
+/// ([`crate::layout::MCU_STACK_LEN`]), with the future on the heap as the MCU keeps its tasks' state in static
+/// storage: only the polls' frames use the stack, as on the MCU. A second net, on the host, for the class of bug the
+/// ELF's stack check (`tools/fw-check/stack.py`) catches first: a task whose frames outgrow the MCU's stack
+/// overflows here too and fails the test (Rust's guard page aborts the process with "thread … has overflowed its
+/// stack"). Host frames (x86-64, another optimisation level) are not the MCU's: this cannot replace the ELF's
+/// figures.
+pub fn run_on_mcu_stack<F, M>(
+    mode: Mode,
+    limit: embassy_time::Duration,
+    make: M,
+) -> Result<F::Output, RunError>
+where
+    M: FnOnce() -> F + Send,
+    F: Future,
+    F::Output: Send,
+{
+    thread::scope(|scope| {
+        thread::Builder::new()
+            .name("mcu-stack".into())
+            .stack_size(crate::layout::MCU_STACK_LEN)
+            .spawn_scoped(scope, move || {
+                run(mode, limit, std::boxed::Box::pin(make()))
+            })
+            .map_err(|_| RunError::Thread)?
+            .join()
+            .unwrap_or_else(|e| std::panic::resume_unwind(e))
+    })
 }
 
 fn run_inner<F: Future>(limit: u64, fut: F) -> Result<F::Output, RunError> {

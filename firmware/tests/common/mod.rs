@@ -79,13 +79,17 @@ impl Sat {
     }
 
     /// Runs the firmware's tasks and `body` together in virtual time until `body` ends (then the tasks are dropped:
-    /// a power cut, as far as they can tell). Panics if virtual time passes `limit`.
-    pub fn run<T>(&mut self, limit: Duration, body: impl AsyncFnOnce(&HostApp, &Board) -> T) -> T {
+    /// a power cut, as far as they can tell), on a thread with the MCU's stack (`clock::run_on_mcu_stack`). Panics
+    /// if virtual time passes `limit`.
+    pub fn run<T: Send>(
+        &mut self,
+        limit: Duration,
+        body: impl AsyncFnOnce(&HostApp, &Board) -> T + Send,
+    ) -> T {
         let Self { app, board, store } = self;
         let (app, board) = (&*app, &*board);
-        let tasks = node::tasks(app, board, store);
-        let body = body(app, board);
-        match clock::run(Mode::Virtual, limit, select(tasks, body)) {
+        let run = move || select(node::tasks(app, board, store), body(app, board));
+        match clock::run_on_mcu_stack(Mode::Virtual, limit, run) {
             Ok(Either::Second(v)) => v,
             Ok(Either::First(())) => panic!("the firmware's tasks ended"),
             Err(e) => panic!("scenario did not finish: {e:?}"),

@@ -89,6 +89,43 @@ const PLAIN_WEIGHTED: FusionConfig = FusionConfig {
     ..FusionConfig::DEFAULT
 };
 
+/// `reset` in place gives the state of a new fusion with the same parameters: the same samples then fuse to the same
+/// outputs, weights and fault counts (a history the reset missed, e.g. the noise estimates or the stuck watch, would
+/// change them).
+#[test]
+fn reset_in_place_equals_a_new_fusion() {
+    let mut s = Scenario::clean();
+    s.noise[3] = 8.0;
+    s.stuck = Some(6);
+    let config = FusionConfig::DEFAULT;
+    let (mut used, ..) = s.run(config, 3_000, 1);
+    used.reset();
+    let fresh = Fusion::<G>::new(config);
+    let again = |mut f: Fusion<G>| {
+        let table = CalibrationTable::<G>::factory();
+        let mut rng = Rng::new(9);
+        let mut out = Vec::new();
+        for i in 0..600 {
+            let mut raw = [RawCounts::default(); G];
+            let mut axes = [[0i32; AXES]; G];
+            for g in 0..G {
+                for x in axes[g].iter_mut() {
+                    *x = (SIGMA_UDPS * rng.normal()).round() as i32 + if g == 3 { 900 } else { 0 };
+                }
+                let c = 30_000 + (i % 7) + g as i32;
+                raw[g] = RawCounts {
+                    gyro: [c; 4],
+                    accel: [c; 3],
+                };
+            }
+            out.push(f.fuse(&raw, &axes, &table));
+        }
+        let faults: Vec<_> = (0..G).map(|g| f.fault_counts(g)).collect();
+        (out, faults)
+    };
+    assert_eq!(again(used), again(fresh));
+}
+
 #[test]
 fn clean_cluster_gains_sqrt_n() {
     let (_, gx, _, last) = Scenario::clean().run(PLAIN_EQUAL, 20_000, 1);

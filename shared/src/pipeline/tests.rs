@@ -598,6 +598,11 @@ fn arrival_times_keep_outages_the_sequence_counter_cannot_see() {
 fn a_bit_flip_in_the_calibration_in_ram_is_detected() {
     let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
     assert!(p.calibration_intact());
+    // Before any load, the factory table in force is checked against its own CRC too.
+    p.inject_calibration_bit_flip(2, 4);
+    assert!(!p.calibration_intact());
+    p.inject_calibration_bit_flip(2, 4);
+    assert!(p.calibration_intact());
     let mut t = CalibrationTable::<GROUPS>::factory();
     t.cal_id = 3;
     p.load_calibration(&t, CalSource::Uploaded);
@@ -608,6 +613,29 @@ fn a_bit_flip_in_the_calibration_in_ram_is_detected() {
         p.inject_calibration_bit_flip(5, bit);
         assert!(p.calibration_intact());
     }
+}
+
+/// Bytes the platform dropped (`link_discarded`, after a flash stall lapped its DMA ring) leave no trace but one
+/// overrun and the frames' sequence gap: the partial frame before the drop is forgotten, so the next whole frame is
+/// accepted without a CRC error, and the frames lost in between are counted.
+#[test]
+fn link_discarded_forgets_the_partial_frame_and_counts_the_gap() {
+    let mut rng = Rng::new(3);
+    let frames: Vec<FrameRepr> = (0..10u16)
+        .map(|seq| frame(seq, 15, [0.0; 3], [0.0, 0.0, 1.0], 0.0, &mut rng))
+        .collect();
+    let bytes = stream(&frames);
+    let len = crate::wire::frame::FRAME_LEN;
+    let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
+    // Frames 0–2, then half of frame 3; the ring is dropped; then frames 7–9.
+    run(&mut p, &bytes[..3 * len + len / 2]);
+    p.link_discarded();
+    run(&mut p, &bytes[7 * len..]);
+    let c = *p.link_counters();
+    assert_eq!(c.frames, 6);
+    assert_eq!(c.crc_errors, 0);
+    assert_eq!(c.overruns, 1);
+    assert_eq!(c.frames_dropped, 4, "frames 3-6");
 }
 
 /// `SetMode` tells the FPGA to stop or start its stream; `ExcludeGroups` leaves groups out of the fusion by hand

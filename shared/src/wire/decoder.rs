@@ -114,6 +114,14 @@ impl FrameDecoder {
         self.counters.overruns = self.counters.overruns.wrapping_add(n);
     }
 
+    /// Forgets the partial frame only, and counts one overrun: the transport dropped the bytes it had buffered (a
+    /// DMA ring lapped during a CPU stall). The sequence history stays, so the next frame's gap counts the frames
+    /// lost.
+    pub fn discard_partial(&mut self) {
+        self.len = 0;
+        self.note_overruns(1);
+    }
+
     /// Forgets the partial frame and the sequence history (counters are kept), e.g. after a link restart.
     pub fn reset(&mut self) {
         self.len = 0;
