@@ -22,3 +22,4 @@ pub mod sim;
 pub mod simcli;
 pub mod stats;
 pub mod testrng;
+pub mod twin;

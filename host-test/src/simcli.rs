@@ -115,6 +115,17 @@ pub struct EffectArgs {
 }
 
 impl EffectArgs {
+    /// Whether any effect was asked for.
+    pub fn any(&self) -> bool {
+        !(self.common_mode.is_empty()
+            && self.block.is_empty()
+            && self.drift.is_empty()
+            && self.thermal.is_empty()
+            && self.outlier.is_empty()
+            && self.unequal == 0.0
+            && !self.cal_spread)
+    }
+
     /// Adds the effects to `cfg`.
     pub fn apply(&self, cfg: &mut SimConfig) -> Result<()> {
         for s in &self.common_mode {

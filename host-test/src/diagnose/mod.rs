@@ -27,6 +27,7 @@ pub mod acov;
 mod candidates;
 pub mod model;
 mod prediction;
+pub use prediction::{scan_statistic, scan_threshold};
 pub mod report;
 mod selection;
 mod singles;
@@ -325,6 +326,28 @@ pub struct Report {
     /// Curves for plots: per axis (label), the held-out measured curve and both predictions.
     #[serde(skip)]
     pub curves: Vec<AxisCurves>,
+    /// What was fitted, typed, per axis (for the twin: `crate::twin`).
+    #[serde(skip)]
+    pub fitted: Vec<AxisFit>,
+}
+
+/// What the diagnosis fitted on one axis, typed: the chosen effects' per-sensor level factors and cross terms (the
+/// report's `params` are their JSON for people). Fitted on the first half, as the selection used them.
+#[derive(Clone, Debug)]
+pub struct AxisFit {
+    /// Gyro or accelerometer.
+    pub kind: SensorKind,
+    /// 0, 1, 2.
+    pub axis: usize,
+    /// The axis's sensors' groups, in the order of `level` and the cross terms' indices.
+    pub groups: Vec<usize>,
+    /// The chosen effects' kinds.
+    pub effects: Vec<&'static str>,
+    /// Variance factor of each sensor relative to the typical one, when a level effect (`unequal_noise`,
+    /// `outlier_sensor`) was chosen.
+    pub level: Option<Vec<f64>>,
+    /// The chosen effects' cross terms, with the kind of the effect each belongs to.
+    pub cross: Vec<(&'static str, Cross)>,
 }
 
 /// Curves of one axis for plotting (held-out half).
@@ -392,6 +415,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
     let mut axes = Vec::new();
     let mut all_effects: Vec<(SensorKind, usize, Candidate, Acts)> = Vec::new();
     let mut curves = Vec::new();
+    let mut fitted = Vec::new();
     let mut gaps = Gaps::default();
     let mut thresholds: BTreeMap<(usize, u64), f64> = BTreeMap::new();
     let mut states: Vec<AxisState> = Vec::new();
@@ -632,6 +656,17 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
                 sigma_ln: taus.iter().map(|r| 1.0 / (2.0 * r.edf).sqrt()).collect(),
             },
         });
+        fitted.push(AxisFit {
+            kind: w.kind,
+            axis: w.axis,
+            groups: w.groups.clone(),
+            effects: refs.iter().map(|c| c.kind).collect(),
+            level: refs.iter().rev().find_map(|c| c.level.clone()),
+            cross: refs
+                .iter()
+                .flat_map(|c| c.cross.iter().map(move |x| (c.kind, x.clone())))
+                .collect(),
+        });
         axes.push(AxisReport {
             axis: label,
             sensors: ns,
@@ -669,6 +704,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
         min_blocks: opts.min_blocks,
         p_false: opts.p_false,
         curves,
+        fitted,
     })
 }
 

@@ -28,6 +28,10 @@ pub struct Args {
     /// JSON result file.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Also write the fitted cluster model (the twin: `docs/twin.md`) to this TOML file, for `ground simulate
+    /// --model`.
+    #[arg(long)]
+    model: Option<PathBuf>,
     /// Weights of the cluster mean.
     #[arg(long, value_enum, default_value = "equal")]
     weights: WeightsArg,
@@ -95,6 +99,21 @@ pub fn run(a: Args) -> Result<()> {
         std::fs::write(j, serde_json::to_string_pretty(&r)?)
             .with_context(|| format!("writing {}", j.display()))?;
         println!("json: {}", j.display());
+    }
+    if let Some(m) = &a.model {
+        let model = host_test::twin::fit(&loaded.recording, &r, &source)?;
+        model.save(m)?;
+        println!(
+            "model: {} ({} axes, {} shared processes, temperature {})",
+            m.display(),
+            model.axes.len(),
+            model.axes.iter().map(|x| x.shared.len()).sum::<usize>(),
+            if model.temperature.is_some() {
+                "modelled"
+            } else {
+                "absent"
+            }
+        );
     }
     Ok(())
 }

@@ -3,6 +3,7 @@
 mod allan;
 mod calibrate;
 mod common;
+mod compare;
 mod decode;
 mod demo;
 mod diagnose;
@@ -45,6 +46,9 @@ enum Cmd {
     /// Sim-to-real diagnosis of a static cluster recording: where the gap to the √N model lies, which effect causes
     /// it, how far it shrinks (checked on the held-out second half).
     Diagnose(diagnose::Args),
+    /// The sim-to-real gap measured directly: two recordings' cluster and typical-sensor Allan deviations compared
+    /// per axis and τ (z-scores, the diagnosis's scan verdict), with a plot and JSON.
+    Compare(compare::Args),
 }
 
 fn main() -> ExitCode {
@@ -58,6 +62,7 @@ fn main() -> ExitCode {
         Cmd::Decode(a) => decode::run(a),
         Cmd::Allan(a) => allan::run(a),
         Cmd::Diagnose(a) => diagnose::run(a),
+        Cmd::Compare(a) => compare::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -37,9 +37,20 @@ pub struct Args {
     /// No sensor noise and the exact nominal calibration (the preset and effects are ignored).
     #[arg(long)]
     noiseless: bool,
-    /// Output rate, Hz (frames carry the decimation that gives it from the FPGA base rate).
-    #[arg(long, default_value_t = 18.9)]
-    rate: f64,
+    /// Output rate, Hz (frames carry the decimation that gives it from the FPGA base rate; default 18.9, or the
+    /// model's).
+    #[arg(long)]
+    rate: Option<f64>,
+    /// Play a cluster model fitted by `ground diagnose --model` (the twin; `docs/twin.md`): rate, duration and
+    /// groups default to the model's.
+    #[arg(long, conflicts_with_all = ["preset", "noiseless", "motion", "rate_dps", "accel_g"])]
+    model: Option<PathBuf>,
+    /// With --model: only the independent typical sensors (the √N model), no effect.
+    #[arg(long, requires = "model")]
+    without_effects: bool,
+    /// With --model: drive the thermal terms with this recording's `temp_c` column.
+    #[arg(long, requires = "model")]
+    temperature_from: Option<PathBuf>,
     /// Random seed (same seed, same output).
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -56,8 +67,91 @@ pub struct Args {
     effects: host_test::simcli::EffectArgs,
 }
 
+/// Samples from --seconds / --samples / --hours at `rate`, or `default`.
+fn samples_of(a: &Args, rate: f64, default: f64) -> Result<f64> {
+    Ok(match (a.samples, a.hours) {
+        _ if a.seconds.is_some() => match a.seconds {
+            Some(s) if s.is_finite() && s > 0.0 => (s * rate).round(),
+            _ => bail!("--seconds must be a positive number"),
+        },
+        (Some(n), _) => n as f64,
+        (None, Some(h)) if h.is_finite() && h > 0.0 => (h * 3600.0 * rate).round(),
+        (None, Some(h)) => bail!("--hours must be a positive number, found {h}"),
+        (None, None) => default,
+    })
+}
+
+/// `--model`: the twin played (`host_test::twin::play`), written as CSV or a frame log.
+fn run_model(a: &Args, path: &std::path::Path) -> Result<()> {
+    use host_test::{simcli, twin};
+    if a.effects.any() {
+        bail!(
+            "--model plays the model's effects: the effect options do not apply (see --without-effects)"
+        );
+    }
+    let model = twin::ClusterModel::load(path)?;
+    let rate = a.rate.unwrap_or(model.record.rate_hz);
+    let frame_log = simcli::check_rates(&a.out, rate, a.base_rate_hz)?;
+    millihz(a.base_rate_hz).context("--base-rate-hz")?;
+    let samples = simcli::check_samples(
+        samples_of(a, rate, model.record.samples as f64)?,
+        rate,
+        frame_log,
+    )?;
+    let temperature = match &a.temperature_from {
+        Some(p) => {
+            let l =
+                host_test::load::load_with(p, None, shared::wire::clock::FPGA_BASE_RATE_MILLIHZ)?;
+            Some(
+                l.recording
+                    .temp_c
+                    .with_context(|| format!("{}: no temp_c column", p.display()))?,
+            )
+        }
+        None => None,
+    };
+    let t0 = std::time::Instant::now();
+    let rec = twin::play(
+        &model,
+        &twin::PlayOptions {
+            seed: a.seed,
+            samples: Some(samples as usize),
+            rate_hz: Some(rate),
+            without_effects: a.without_effects,
+            temperature,
+        },
+    )?;
+    if frame_log {
+        let frames = twin::play::frames(&rec, simcli::frame_opts(rate, a.base_rate_hz).decimation)?;
+        std::fs::write(&a.out, frames).with_context(|| format!("writing {}", a.out.display()))?;
+    } else {
+        rec.write(&a.out)
+            .with_context(|| format!("writing {}", a.out.display()))?;
+    }
+    let size = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
+    println!(
+        "{}: the model of {} {}, {samples} samples at {rate} Hz ({:.2} h), {} groups, {:.1} MB, {:.1} s",
+        a.out.display(),
+        model.record.source,
+        if a.without_effects {
+            "without effects"
+        } else {
+            "with its effects"
+        },
+        samples as f64 / rate / 3600.0,
+        model.record.groups.len(),
+        size as f64 / 1e6,
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
 pub fn run(a: Args) -> Result<()> {
     use host_test::{seedfit, sim, simcli};
+    if let Some(m) = &a.model {
+        return run_model(&a, m);
+    }
+    let rate = a.rate.unwrap_or(18.9);
     let sim_err = |e: sim::SimError| anyhow::anyhow!("{e}");
     let mut cfg = match a.preset {
         PresetArg::Seed => sim::preset::seed_config(a.seed).map_err(sim_err)?,
@@ -68,37 +162,32 @@ pub fn run(a: Args) -> Result<()> {
     if a.noiseless {
         cfg = sim::SimConfig::new(
             a.seed,
-            a.rate,
+            rate,
             cfg.samples,
             [sim::NoiseParams::default(); sim::CHANNELS],
         );
     }
     cfg.motion = a.motion;
-    let frame_log = simcli::check_rates(&a.out, a.rate, a.base_rate_hz)?;
+    let frame_log = simcli::check_rates(&a.out, rate, a.base_rate_hz)?;
     millihz(a.base_rate_hz).context("--base-rate-hz")?;
-    cfg.rate_hz = a.rate;
-    let samples = match (a.samples, a.hours) {
-        _ if a.seconds.is_some() => match a.seconds {
-            Some(s) if s.is_finite() && s > 0.0 => (s * a.rate).round(),
-            _ => bail!("--seconds must be a positive number"),
-        },
-        (Some(n), _) => n as f64,
-        (None, Some(h)) if h.is_finite() && h > 0.0 => (h * 3600.0 * a.rate).round(),
-        (None, Some(h)) => bail!("--hours must be a positive number, found {h}"),
-        (None, None) if a.rate == 18.9 => cfg.samples as f64,
-        (None, None) => (8.0 * 3600.0 * a.rate).round(),
+    cfg.rate_hz = rate;
+    let default = if rate == 18.9 {
+        cfg.samples as f64
+    } else {
+        (8.0 * 3600.0 * rate).round()
     };
-    cfg.samples = simcli::check_samples(samples, a.rate, frame_log)?;
-    cfg.frames = simcli::frame_opts(a.rate, a.base_rate_hz);
+    let samples = samples_of(&a, rate, default)?;
+    cfg.samples = simcli::check_samples(samples, rate, frame_log)?;
+    cfg.frames = simcli::frame_opts(rate, a.base_rate_hz);
     if frame_log {
         let actual = a.base_rate_hz / (f64::from(cfg.frames.decimation) + 1.0);
-        if (actual / a.rate - 1.0).abs() > 1e-9 {
+        if (actual / rate - 1.0).abs() > 1e-9 {
             eprintln!(
                 "note: the frames' time base is {} Hz / {} = {actual} Hz (decimation {}), not exactly --rate {} Hz",
                 a.base_rate_hz,
                 u32::from(cfg.frames.decimation) + 1,
                 cfg.frames.decimation,
-                a.rate
+                rate
             );
         }
     }
@@ -125,8 +214,8 @@ pub fn run(a: Args) -> Result<()> {
     println!(
         "{}: {samples} samples at {} Hz ({:.2} h), {:.1} MB, {:.1} s",
         a.out.display(),
-        a.rate,
-        samples as f64 / a.rate / 3600.0,
+        rate,
+        samples as f64 / rate / 3600.0,
         size as f64 / 1e6,
         t0.elapsed().as_secs_f64()
     );

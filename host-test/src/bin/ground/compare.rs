@@ -1,0 +1,74 @@
+//! `ground compare`: the sim-to-real gap measured directly between two recordings (`host_test::twin::compare`).
+
+use crate::common::spinner;
+use anyhow::{Context, Result};
+use host_test::load;
+use host_test::plot::{Curve, Panel, Style, adev_panels};
+use host_test::twin::compare::{CurveVerdict, P_FALSE};
+use shared::wire::clock::FPGA_BASE_RATE_MILLIHZ;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The real recording (any format the other commands read).
+    real: PathBuf,
+    /// The simulated one (e.g. `ground simulate --model`).
+    sim: PathBuf,
+    /// Directory for compare.json and compare.png.
+    #[arg(long, default_value = "compare-out")]
+    out: PathBuf,
+    /// False-alarm probability of the verdict per axis.
+    #[arg(long, default_value_t = P_FALSE)]
+    p_false: f64,
+}
+
+fn curve(v: &CurveVerdict, real: bool, style: Style, label: &str) -> Curve {
+    let d = |t: &host_test::twin::compare::TauGap| if real { t.a } else { t.b };
+    Curve {
+        label: Some(label.into()),
+        points: v.taus.iter().map(|t| (t.tau_s, d(t).dev)).collect(),
+        bars: v.taus.iter().map(|t| (t.tau_s, d(t).lo, d(t).hi)).collect(),
+        style,
+    }
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let pb = spinner("reading");
+    let real = load::load_with(&a.real, None, FPGA_BASE_RATE_MILLIHZ)?.recording;
+    let sim = load::load_with(&a.sim, None, FPGA_BASE_RATE_MILLIHZ)?.recording;
+    pb.set_message("Allan deviations and verdicts");
+    let c = host_test::twin::compare(&real, &sim, a.p_false)?;
+    pb.finish_and_clear();
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let json = a.out.join("compare.json");
+    std::fs::write(&json, serde_json::to_string_pretty(&c)?)
+        .with_context(|| format!("writing {}", json.display()))?;
+    let panels: Vec<Panel> = c
+        .axes
+        .iter()
+        .map(|x| Panel {
+            title: format!(
+                "{}{}",
+                x.axis,
+                if x.significant {
+                    ": NOT reproduced"
+                } else {
+                    ": reproduced"
+                }
+            ),
+            y_label: "Allan deviation".into(),
+            curves: vec![
+                curve(&x.typical, true, Style::Thin(0), "real, typical sensor"),
+                curve(&x.typical, false, Style::Thin(1), "sim, typical sensor"),
+                curve(&x.cluster, true, Style::Bold, "real, cluster"),
+                curve(&x.cluster, false, Style::Model(3), "sim, cluster"),
+            ],
+        })
+        .collect();
+    let png = a.out.join("compare.png");
+    let title = format!("{} vs {}", a.real.display(), a.sim.display());
+    adev_panels(&png, &title, &panels, 3).map_err(anyhow::Error::msg)?;
+    print!("{}", c.summary());
+    println!("json: {}, plot: {}", json.display(), png.display());
+    Ok(())
+}

@@ -1,0 +1,294 @@
+//! The sim-to-real gap measured directly: two recordings of the same cluster (a real one and a simulated one, or
+//! two real ones) compared axis by axis and τ by τ.
+//!
+//! Per axis, two curves of each recording: the **cluster** (equal-weight mean of the axis's sensors) and the
+//! **typical sensor** (per-τ median of the sensors' deviations). Both are octave overlapping Allan deviations with
+//! Greenhall EDFs and χ² intervals. At each τ both have, the z-score of the ratio of the two variance estimates is
+//! `ln(σ²_a/σ²_b) / √(2/ν_a + 2/ν_b)` (each `ln σ²` has variance ≈ 2/ν; the median of N sensors is taken as
+//! carrying `2N/π` times one sensor's EDF, the median's efficiency for normal data). The verdict is the
+//! diagnosis's scan statistic over τ (`diagnose::scan_statistic`: the largest standardised sum over a band of
+//! contiguous τ), in both directions — a simulation too noisy or too quiet — for both curves, each of the four
+//! tests at `p_false / 4`: an axis is reproduced unless one exceeds its threshold.
+
+use super::*;
+use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, TauSpec};
+use crate::diagnose::{scan_statistic, scan_threshold};
+use crate::formats::csv::Recording;
+use crate::stats::median;
+
+/// Default false-alarm probability of the verdict per axis (the diagnosis's `p_false`).
+pub const P_FALSE: f64 = 2e-3;
+/// Fewest averaging blocks of a τ compared (the diagnosis's `min_blocks`).
+pub const MIN_BLOCKS: usize = 4;
+
+/// One recording's deviation at one τ.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Dev {
+    /// Deviation.
+    pub dev: f64,
+    /// 68 % interval.
+    pub lo: f64,
+    /// Upper bound.
+    pub hi: f64,
+    /// EDF.
+    pub edf: f64,
+}
+
+/// One τ of one curve.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct TauGap {
+    /// τ, s.
+    pub tau_s: f64,
+    /// The first recording (the real one).
+    pub a: Dev,
+    /// The second (the simulation).
+    pub b: Dev,
+    /// z-score of ln(σ²_a / σ²_b): > 0 when the first is noisier.
+    pub z: f64,
+}
+
+/// The verdict on one curve.
+#[derive(Clone, Debug, Serialize)]
+pub struct CurveVerdict {
+    /// Scan statistic of z (the first noisier) and of −z (the second noisier).
+    pub scan: [f64; 2],
+    /// Threshold of each.
+    pub threshold: f64,
+    /// Whether either exceeds it.
+    pub significant: bool,
+    /// τ range of the points with |z| > 2 when significant, s.
+    pub where_tau_s: Option<[f64; 2]>,
+    /// Every τ.
+    pub taus: Vec<TauGap>,
+}
+
+/// One axis.
+#[derive(Clone, Debug, Serialize)]
+pub struct AxisComparison {
+    /// `gx`, …
+    pub axis: String,
+    /// Sensors in each recording.
+    pub sensors: [usize; 2],
+    /// The cluster mean.
+    pub cluster: CurveVerdict,
+    /// The typical sensor.
+    pub typical: CurveVerdict,
+    /// Whether the second recording fails to reproduce the first on this axis.
+    pub significant: bool,
+}
+
+/// The comparison.
+#[derive(Clone, Debug, Serialize)]
+pub struct Comparison {
+    /// False-alarm probability per axis.
+    pub p_false: f64,
+    /// Per axis present in both.
+    pub axes: Vec<AxisComparison>,
+    /// Axes where the second does not reproduce the first.
+    pub significant_axes: Vec<String>,
+}
+
+fn octave(an: &mut Analyzer, y: &[f64], tau0: f64) -> Vec<AnalysisPoint> {
+    an.analyze(
+        DevKind::Oadev,
+        y,
+        tau0,
+        &TauSpec::Octave,
+        &AllanOptions::default(),
+    )
+}
+
+/// (τ, deviation, EDF) of the cluster mean and of the typical sensor of one axis.
+type Curves = (Vec<(f64, Dev)>, Vec<(f64, Dev)>);
+
+fn curves(
+    an: &mut Analyzer,
+    rec: &Recording,
+    kind: SensorKind,
+    axis: usize,
+    tau0: f64,
+) -> Option<(Curves, usize)> {
+    let cols: Vec<&[f64]> = rec
+        .columns
+        .iter()
+        .filter(|c| c.kind == kind && c.axis == axis)
+        .map(|c| c.data.as_slice())
+        .collect();
+    if cols.len() < 2 {
+        return None;
+    }
+    let n = cols.iter().map(|c| c.len()).min()?;
+    let ns = cols.len();
+    let mean: Vec<f64> = (0..n)
+        .map(|i| cols.iter().map(|c| c[i]).sum::<f64>() / ns as f64)
+        .collect();
+    // A τ with at least `MIN_BLOCKS` averaging blocks and a known EDF (scaled by `edf_scale`), its χ² interval.
+    let dev = |p: &AnalysisPoint, dev: f64, edf_scale: f64| -> Option<(f64, Dev)> {
+        let edf = p.edf? * edf_scale;
+        (n / p.m.max(1) >= MIN_BLOCKS && dev > 0.0).then(|| {
+            let (lo, hi) = interval(dev, edf);
+            (p.tau_s, Dev { dev, lo, hi, edf })
+        })
+    };
+    let cluster = octave(an, &mean[..], tau0)
+        .iter()
+        .filter_map(|p| dev(p, p.dev, 1.0))
+        .collect();
+    let singles: Vec<Vec<AnalysisPoint>> = cols.iter().map(|c| octave(an, &c[..n], tau0)).collect();
+    let k = singles.iter().map(Vec::len).min().unwrap_or(0);
+    let median_edf = 2.0 * ns as f64 / std::f64::consts::PI;
+    let typical = (0..k)
+        .filter_map(|j| {
+            let devs: Vec<f64> = singles.iter().map(|s| s[j].dev).collect();
+            dev(&singles[0][j], median(&devs), median_edf)
+        })
+        .collect();
+    Some(((cluster, typical), ns))
+}
+
+/// The 68 % interval of a deviation with `edf` degrees of freedom (χ² quantiles).
+fn interval(dev: f64, edf: f64) -> (f64, f64) {
+    use statrs::distribution::{ChiSquared, ContinuousCDF};
+    match ChiSquared::new(edf) {
+        Ok(c) => (
+            dev * (edf / c.inverse_cdf(0.841_344_746)).sqrt(),
+            dev * (edf / c.inverse_cdf(0.158_655_254)).sqrt(),
+        ),
+        Err(_) => (dev, dev),
+    }
+}
+
+fn verdict(a: &[(f64, Dev)], b: &[(f64, Dev)], p: f64) -> CurveVerdict {
+    let taus: Vec<TauGap> = a
+        .iter()
+        .filter_map(|(t, da)| {
+            let (_, db) = b.iter().find(|(tb, _)| (tb / t - 1.0).abs() < 1e-6)?;
+            let z = (da.dev.powi(2) / db.dev.powi(2)).ln() / (2.0 / da.edf + 2.0 / db.edf).sqrt();
+            z.is_finite().then_some(TauGap {
+                tau_s: *t,
+                a: *da,
+                b: *db,
+                z,
+            })
+        })
+        .collect();
+    let z: Vec<f64> = taus.iter().map(|t| t.z).collect();
+    let neg: Vec<f64> = z.iter().map(|x| -x).collect();
+    let threshold = scan_threshold(z.len(), p);
+    let scan = if z.is_empty() {
+        [f64::NEG_INFINITY; 2]
+    } else {
+        [scan_statistic(&z), scan_statistic(&neg)]
+    };
+    let significant = scan.iter().any(|&s| s > threshold);
+    let off: Vec<f64> = taus
+        .iter()
+        .filter(|t| t.z.abs() > 2.0)
+        .map(|t| t.tau_s)
+        .collect();
+    let where_tau_s = (significant && !off.is_empty()).then(|| {
+        [
+            off.iter().copied().fold(f64::INFINITY, f64::min),
+            off.iter().copied().fold(0.0, f64::max),
+        ]
+    });
+    CurveVerdict {
+        scan,
+        threshold,
+        significant,
+        where_tau_s,
+        taus,
+    }
+}
+
+/// Compares recording `b` (a simulation) with `a` (the real one) at false-alarm probability `p_false` per axis.
+/// Both must have the same sample rate (within 10⁻⁶).
+pub fn compare(a: &Recording, b: &Recording, p_false: f64) -> Result<Comparison, TwinError> {
+    let ta = a
+        .sample_interval_s()
+        .ok_or_else(|| TwinError::Invalid("first recording: fewer than two samples".into()))?;
+    let tb = b
+        .sample_interval_s()
+        .ok_or_else(|| TwinError::Invalid("second recording: fewer than two samples".into()))?;
+    if (ta / tb - 1.0).abs() > 1e-6 {
+        return Err(TwinError::Invalid(format!(
+            "sample rates differ: {} Hz and {} Hz",
+            1.0 / ta,
+            1.0 / tb
+        )));
+    }
+    let mut an = Analyzer::new();
+    let mut axes = Vec::new();
+    for kind in [SensorKind::Gyro, SensorKind::Accel] {
+        for axis in 0..3 {
+            let (Some((ca, na)), Some((cb, nb))) = (
+                curves(&mut an, a, kind, axis, ta),
+                curves(&mut an, b, kind, axis, tb),
+            ) else {
+                continue;
+            };
+            let cluster = verdict(&ca.0, &cb.0, p_false / 4.0);
+            let typical = verdict(&ca.1, &cb.1, p_false / 4.0);
+            axes.push(AxisComparison {
+                axis: format!("{}{}", kind.prefix(), crate::formats::csv::AXIS_NAMES[axis]),
+                sensors: [na, nb],
+                significant: cluster.significant || typical.significant,
+                cluster,
+                typical,
+            });
+        }
+    }
+    if axes.is_empty() {
+        return Err(TwinError::Invalid(
+            "no axis with at least two sensors in both recordings".into(),
+        ));
+    }
+    let significant_axes = axes
+        .iter()
+        .filter(|a| a.significant)
+        .map(|a| a.axis.clone())
+        .collect();
+    Ok(Comparison {
+        p_false,
+        axes,
+        significant_axes,
+    })
+}
+
+impl Comparison {
+    /// A few lines for a person: per axis, reproduced or not, and where.
+    pub fn summary(&self) -> String {
+        let mut s = String::new();
+        for a in &self.axes {
+            let part = |name: &str, v: &CurveVerdict| -> String {
+                match (v.significant, v.where_tau_s) {
+                    (false, _) => format!("{name} reproduced"),
+                    (true, Some([lo, hi])) => format!(
+                        "{name} NOT reproduced at τ {}–{} s",
+                        crate::adev::round_sig(lo, 3),
+                        crate::adev::round_sig(hi, 3)
+                    ),
+                    (true, None) => format!("{name} NOT reproduced"),
+                }
+            };
+            s.push_str(&format!(
+                "{}: {}; {} (scan {:.1}/{:.1} vs {:.1})\n",
+                a.axis,
+                part("cluster", &a.cluster),
+                part("typical sensor", &a.typical),
+                a.cluster.scan[0].max(a.typical.scan[0]),
+                a.cluster.scan[1].max(a.typical.scan[1]),
+                a.cluster.threshold
+            ));
+        }
+        s.push_str(&if self.significant_axes.is_empty() {
+            format!(
+                "every axis reproduced (p_false {} per axis)\n",
+                self.p_false
+            )
+        } else {
+            format!("not reproduced on: {}\n", self.significant_axes.join(", "))
+        });
+        s
+    }
+}

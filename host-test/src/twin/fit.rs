@@ -1,0 +1,359 @@
+//! The model from a recording and its diagnosis: what the diagnosis chose becomes the model's structure (shared
+//! processes, thermal coefficients, per-sensor levels), and the terms are fitted on the whole record.
+//!
+//! - **Thermal**: each sensor's coefficient is the diagnosis's; the sensors' series are fitted with
+//!   `β·(T − T_ref)` removed, so that the temperature is not counted twice (once in β, once as random walk).
+//! - **Typical sensor**: five terms (Q, N, B, K, R) fitted to the per-τ median of the sensors' octave Allan
+//!   deviations, the median scaled to a mean (χ² of the EDF), as the diagnosis does.
+//! - **Own terms**: a sensor's own fit where the diagnosis found unequal sensors (`unequal_noise`, `outlier_sensor`),
+//!   else the typical terms: without a level effect the sensors are equal within their scatter, and a fit per sensor
+//!   would only copy its estimation noise into the twin.
+//! - **Shared processes**: the terms the diagnosis fitted to each shared process; a member's independent terms are
+//!   its own less the processes it shares, term by term.
+//! - **Temperature**: a line and up to two sinusoids (periods found by a least-squares scan), the rest as noise
+//!   terms ([`fit_temperature`]).
+
+use super::*;
+use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, TauSpec};
+use crate::diagnose::model::{Cross, Terms};
+use crate::diagnose::{AxisFit, Report};
+use crate::formats::csv::Recording;
+use crate::stats::median;
+use statrs::distribution::{ChiSquared, ContinuousCDF};
+
+/// Harmonics that explain less than this share of what remains are not kept.
+const HARMONIC_MIN_SHARE: f64 = 0.05;
+/// Most harmonics fitted.
+const HARMONICS_MAX: usize = 2;
+
+/// The model of `rec` from its diagnosis `report` (which must be of this record: `diagnose(rec, …)`); `source`
+/// names the record in the model.
+pub fn fit(rec: &Recording, report: &Report, source: &str) -> Result<ClusterModel, TwinError> {
+    let tau0 = rec.sample_interval_s().ok_or_else(|| {
+        TwinError::Invalid("fewer than two samples, or time not increasing".into())
+    })?;
+    let n = rec.len();
+    let temp = rec
+        .temp_c
+        .as_deref()
+        .filter(|t| t.len() >= n && t.iter().all(|x| x.is_finite()));
+    let temperature = temp.map(|t| fit_temperature(&rec.t_s, &t[..n], tau0));
+    let t_ref = temperature.as_ref().map(|t| t.reference_c);
+    let mut an = Analyzer::new();
+    let mut axes = Vec::new();
+    for af in &report.fitted {
+        axes.push(fit_axis(rec, af, temp, t_ref, tau0, &mut an)?);
+    }
+    let effects = report
+        .effects
+        .iter()
+        .map(|e| EffectSummary {
+            kind: e.kind.clone(),
+            sensor: e.sensor.clone(),
+            axes: e.axes.clone(),
+            tau_s: e.tau_s,
+            share: e.share,
+        })
+        .collect();
+    let model = ClusterModel {
+        format: FORMAT.into(),
+        record: RecordInfo {
+            source: source.into(),
+            rate_hz: 1.0 / tau0,
+            samples: n,
+            duration_s: n as f64 * tau0,
+            groups: rec.groups(),
+            columns: rec.columns.iter().map(|c| c.name()).collect(),
+        },
+        temperature,
+        effects,
+        axes,
+    };
+    model.validate().map_err(TwinError::Invalid)?;
+    Ok(model)
+}
+
+fn fit_axis(
+    rec: &Recording,
+    af: &AxisFit,
+    temp: Option<&[f64]>,
+    t_ref: Option<f64>,
+    tau0: f64,
+    an: &mut Analyzer,
+) -> Result<AxisModel, TwinError> {
+    let label = format!(
+        "{}{}",
+        af.kind.prefix(),
+        crate::formats::csv::AXIS_NAMES[af.axis]
+    );
+    let series: Vec<&[f64]> = af
+        .groups
+        .iter()
+        .map(|&g| {
+            rec.columns
+                .iter()
+                .find(|c| c.kind == af.kind && c.axis == af.axis && c.group == g)
+                .map(|c| &c.data[..rec.len().min(c.data.len())])
+                .ok_or_else(|| TwinError::Invalid(format!("{label}: no column for group {g}")))
+        })
+        .collect::<Result<_, _>>()?;
+    let ns = series.len();
+    // Thermal coefficients (summed if several thermal terms were chosen), and the series without them.
+    let mut beta = vec![0.0; ns];
+    for (_, c) in &af.cross {
+        if let Cross::Thermal { beta: b } = c {
+            beta.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+        }
+    }
+    let cleaned: Vec<Vec<f64>> = series
+        .iter()
+        .zip(&beta)
+        .map(|(s, &b)| match (temp, t_ref) {
+            (Some(t), Some(r)) if b != 0.0 => {
+                s.iter().zip(t).map(|(x, t)| x - b * (t - r)).collect()
+            }
+            _ => s.to_vec(),
+        })
+        .collect();
+    let points: Vec<Vec<AnalysisPoint>> = cleaned
+        .iter()
+        .map(|s| {
+            an.analyze(
+                DevKind::Oadev,
+                s,
+                tau0,
+                &TauSpec::Octave,
+                &AllanOptions::default(),
+            )
+        })
+        .collect();
+    let typical = fit_terms(&typical_points(&points));
+    let own: Vec<NoiseTerms> = if af.level.is_some() {
+        points.iter().map(|p| fit_terms(p)).collect()
+    } else {
+        vec![typical; ns]
+    };
+    let shared: Vec<(SharedProcess, &[usize])> = af
+        .cross
+        .iter()
+        .filter_map(|(kind, c)| match c {
+            Cross::Shared { members, share } => Some((
+                SharedProcess {
+                    kind: (*kind).into(),
+                    groups: members
+                        .iter()
+                        .filter_map(|&i| af.groups.get(i).copied())
+                        .collect(),
+                    terms: NoiseTerms::from_avar_coefficients(share.part.0),
+                },
+                members.as_slice(),
+            )),
+            Cross::Thermal { .. } => None,
+        })
+        .collect();
+    let sensors = (0..ns)
+        .map(|i| {
+            let independent = shared
+                .iter()
+                .filter(|(_, members)| members.contains(&i))
+                .fold(own[i], |acc, (p, _)| acc.less(&p.terms));
+            SensorModel {
+                group: af.groups[i],
+                mean: crate::stats::mean(&cleaned[i]),
+                independent,
+                thermal_per_c: beta[i],
+            }
+        })
+        .collect();
+    Ok(AxisModel {
+        axis: label,
+        unit: af.kind.unit().into(),
+        typical,
+        effects: af.effects.iter().map(|k| (*k).to_string()).collect(),
+        sensors,
+        shared: shared.into_iter().map(|(p, _)| p).collect(),
+    })
+}
+
+/// The per-τ median of the sensors' deviations, scaled to a mean (`ν / χ²_ν median`, as the diagnosis's typical
+/// sensor), at the τ every sensor has.
+fn typical_points(points: &[Vec<AnalysisPoint>]) -> Vec<AnalysisPoint> {
+    let k = points.iter().map(Vec::len).min().unwrap_or(0);
+    (0..k)
+        .map(|j| {
+            let devs: Vec<f64> = points.iter().map(|p| p[j].dev).collect();
+            let p0 = points[0][j];
+            let scale = p0.edf.map_or(1.0, median_to_mean);
+            AnalysisPoint {
+                dev: median(&devs) * scale.sqrt(),
+                ..p0
+            }
+        })
+        .collect()
+}
+
+fn median_to_mean(nu: f64) -> f64 {
+    ChiSquared::new(nu)
+        .map(|c| nu / c.inverse_cdf(0.5))
+        .ok()
+        .filter(|x| x.is_finite() && *x > 0.0)
+        .unwrap_or(1.0)
+}
+
+/// The five terms fitted (non-negative least squares on the Allan variance, each point weighted by its EDF over
+/// its squared variance, as `noisefit::fit`) to octave points.
+pub fn fit_terms(points: &[AnalysisPoint]) -> NoiseTerms {
+    let rows: Vec<([f64; 5], f64, f64)> = points
+        .iter()
+        .filter(|p| p.dev > 0.0 && p.dev.is_finite())
+        .map(|p| {
+            let y = p.dev * p.dev;
+            let edf = p.edf.unwrap_or(p.n as f64).max(1.0);
+            (Terms::basis(p.tau_s), y, edf / 2.0 / (y * y))
+        })
+        .collect();
+    crate::noisefit::nnls::<5>(&rows)
+        .map(NoiseTerms::from_avar_coefficients)
+        .unwrap_or_default()
+}
+
+/// Least squares of `y` on the columns `cols` (normal equations; `None` if singular).
+fn lstsq(cols: &[Vec<f64>], y: &[f64]) -> Option<Vec<f64>> {
+    let k = cols.len();
+    let mut a = vec![vec![0.0; k + 1]; k];
+    for r in 0..k {
+        for c in 0..k {
+            a[r][c] = cols[r].iter().zip(&cols[c]).map(|(x, z)| x * z).sum();
+        }
+        a[r][k] = cols[r].iter().zip(y).map(|(x, z)| x * z).sum();
+    }
+    for col in 0..k {
+        let piv = (col..k).max_by(|&x, &z| a[x][col].abs().total_cmp(&a[z][col].abs()))?;
+        if a[piv][col].abs() < 1e-300 {
+            return None;
+        }
+        a.swap(col, piv);
+        let p = a[col].clone();
+        for (r, row) in a.iter_mut().enumerate() {
+            if r != col {
+                let f = row[col] / p[col];
+                row.iter_mut().zip(&p).for_each(|(x, q)| *x -= f * q);
+            }
+        }
+    }
+    Some((0..k).map(|r| a[r][k] / a[r][r]).collect())
+}
+
+fn sum_sq(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum()
+}
+
+/// The temperature model of `temp` sampled at `t_s` (see the module docs): the line and the harmonics are fitted
+/// together at the periods a scan found (each period the one, among 400 log-spaced from 20 samples to the record's
+/// length and refined by a golden-section search, whose sinusoid removes most of what remains); the residual's
+/// octave Allan deviation gives the noise.
+pub fn fit_temperature(t_s: &[f64], temp: &[f64], tau0: f64) -> TemperatureModel {
+    let n = temp.len().min(t_s.len());
+    let (t, y) = (&t_s[..n], &temp[..n]);
+    let t0 = t.first().copied().unwrap_or(0.0);
+    let tt: Vec<f64> = t.iter().map(|x| x - t0).collect();
+    let duration = tt.last().copied().unwrap_or(0.0).max(tau0);
+    let mut cols = vec![vec![1.0; n], tt.clone()];
+    let mut periods: Vec<f64> = Vec::new();
+    let residual = |cols: &[Vec<f64>]| -> (Vec<f64>, Vec<f64>) {
+        let c = lstsq(cols, y).unwrap_or_else(|| vec![0.0; cols.len()]);
+        let r = (0..n)
+            .map(|i| y[i] - cols.iter().zip(&c).map(|(col, k)| col[i] * k).sum::<f64>())
+            .collect();
+        (c, r)
+    };
+    let (_, mut r) = residual(&cols);
+    let (p_lo, p_hi) = ((20.0 * tau0).max(1e-9), duration);
+    for _ in 0..HARMONICS_MAX {
+        if p_hi <= p_lo || sum_sq(&r) == 0.0 {
+            break;
+        }
+        let grid = 400;
+        let best = (0..=grid)
+            .map(|k| p_lo * (p_hi / p_lo).powf(k as f64 / grid as f64))
+            .map(|p| (p, sinusoid_gain(&tt, &r, p)))
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        let Some((p, _)) = best else { break };
+        // The grid's step is 1.8 % of the period at most: refine within a step (golden section).
+        let (mut a, mut b) = (p / 1.02, p * 1.02);
+        let g = (5f64.sqrt() - 1.0) / 2.0;
+        for _ in 0..50 {
+            let (c1, c2) = (b - g * (b - a), a + g * (b - a));
+            if sinusoid_gain(&tt, &r, c1) > sinusoid_gain(&tt, &r, c2) {
+                b = c2;
+            } else {
+                a = c1;
+            }
+        }
+        let p = 0.5 * (a + b);
+        if sinusoid_gain(&tt, &r, p) < HARMONIC_MIN_SHARE * sum_sq(&r) {
+            break;
+        }
+        let w = std::f64::consts::TAU / p;
+        cols.push(tt.iter().map(|x| (w * x).sin()).collect());
+        cols.push(tt.iter().map(|x| (w * x).cos()).collect());
+        periods.push(p);
+        r = residual(&cols).1;
+    }
+    let (c, r) = residual(&cols);
+    let harmonics = periods
+        .iter()
+        .enumerate()
+        .map(|(k, &p)| {
+            let (s, co) = (c[2 + 2 * k], c[3 + 2 * k]);
+            // a·sin(ωt) + b·cos(ωt) = A·sin(ωt + φ); t counted from the record's first sample.
+            Harmonic {
+                period_s: p,
+                amplitude_c: s.hypot(co),
+                phase_rad: co.atan2(s),
+            }
+        })
+        .collect();
+    let pts = Analyzer::new().analyze(
+        DevKind::Oadev,
+        &r,
+        tau0,
+        &TauSpec::Octave,
+        &AllanOptions::default(),
+    );
+    let nf = crate::noisefit::fit(&pts);
+    TemperatureModel {
+        reference_c: crate::stats::mean(y),
+        start_c: c[0],
+        drift_c_per_h: c[1] * 3600.0,
+        harmonics,
+        noise: NoiseTerms {
+            quantization: nf.quantization,
+            white: nf.white,
+            bias_instability: nf.bias_instability,
+            random_walk: nf.random_walk,
+            ramp: 0.0,
+        },
+    }
+}
+
+/// Sum of squares a sinusoid of period `p` removes from `r` (least squares on sin and cos).
+fn sinusoid_gain(t: &[f64], r: &[f64], p: f64) -> f64 {
+    let w = std::f64::consts::TAU / p;
+    let (mut ss, mut cc, mut sc, mut sr, mut cr) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for (&x, &y) in t.iter().zip(r) {
+        let (s, c) = (w * x).sin_cos();
+        ss += s * s;
+        cc += c * c;
+        sc += s * c;
+        sr += s * y;
+        cr += c * y;
+    }
+    let det = ss * cc - sc * sc;
+    if det.abs() < 1e-300 {
+        return 0.0;
+    }
+    let a = (cc * sr - sc * cr) / det;
+    let b = (ss * cr - sc * sr) / det;
+    a * sr + b * cr
+}

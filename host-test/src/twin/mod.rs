@@ -1,0 +1,370 @@
+//! The cluster's twin: the model the diagnosis fits to a recording ([`fit`]), written as a versioned TOML file
+//! (`docs/twin.md`), played back as a synthetic recording of the same cluster ([`play`]), and the sim-to-real gap
+//! measured directly between two recordings ([`compare`]).
+//!
+//! The model is what the diagnosis found, in the simulator's terms: per sensor and axis its own (independent)
+//! noise terms and mean, its thermal coefficient; per axis the processes shared by several sensors; and a model of
+//! the board temperature. The noise terms are the IEEE Std 952 ones the diagnosis fits (quantisation Q, white N,
+//! bias instability B, rate random walk K, ramp R), in physical units, so that a reader can check them against a
+//! datasheet.
+
+pub mod compare;
+pub mod fit;
+pub mod play;
+
+use crate::formats::csv::SensorKind;
+use crate::noisefit::FLICKER_AVAR;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+pub use compare::{Comparison, compare};
+pub use fit::fit;
+pub use play::{PlayOptions, play};
+
+/// The format tag of a model file; a file with another tag is refused.
+pub const FORMAT: &str = "imu-cluster-twin/1";
+
+/// Why a model could not be fitted, read, written or played.
+#[derive(Debug, thiserror::Error)]
+pub enum TwinError {
+    /// The file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The file is not a model of this format.
+    #[error("{path}: not a cluster model: {reason}")]
+    Format {
+        /// The file.
+        path: String,
+        /// Why.
+        reason: String,
+    },
+    /// The inputs cannot give a model or a recording.
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// The five noise terms of one sensor axis or shared process, in physical units (gyro °/s, accelerometer g).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct NoiseTerms {
+    /// Quantisation Q, unit·s (Allan variance 3Q²/τ²).
+    pub quantization: f64,
+    /// White noise N, unit/√Hz (N²/τ): angle or velocity random walk.
+    pub white: f64,
+    /// Bias instability B, unit ((2 ln2/π)·B²).
+    pub bias_instability: f64,
+    /// Rate random walk K, unit/√s (K²τ/3).
+    pub random_walk: f64,
+    /// Ramp R, unit/s (R²τ²/2).
+    pub ramp: f64,
+}
+
+impl NoiseTerms {
+    /// From the Allan-variance coefficients `[3Q², N², (2 ln2/π)B², K²/3, R²/2]` (negative ones count as 0).
+    pub fn from_avar_coefficients(c: [f64; 5]) -> Self {
+        let c = c.map(|x| x.max(0.0));
+        Self {
+            quantization: (c[0] / 3.0).sqrt(),
+            white: c[1].sqrt(),
+            bias_instability: (c[2] / FLICKER_AVAR).sqrt(),
+            random_walk: (3.0 * c[3]).sqrt(),
+            ramp: (2.0 * c[4]).sqrt(),
+        }
+    }
+
+    /// The Allan-variance coefficients (inverse of [`Self::from_avar_coefficients`]).
+    pub fn avar_coefficients(&self) -> [f64; 5] {
+        [
+            3.0 * self.quantization.powi(2),
+            self.white.powi(2),
+            FLICKER_AVAR * self.bias_instability.powi(2),
+            self.random_walk.powi(2) / 3.0,
+            self.ramp.powi(2) / 2.0,
+        ]
+    }
+
+    /// The Allan variance at `tau_s`.
+    pub fn avar(&self, tau_s: f64) -> f64 {
+        let b = crate::diagnose::model::Terms::basis(tau_s);
+        self.avar_coefficients()
+            .iter()
+            .zip(b)
+            .map(|(c, b)| c * b)
+            .sum()
+    }
+
+    /// These terms less `other`'s, term by term in Allan variance, none below zero.
+    pub fn less(&self, other: &NoiseTerms) -> NoiseTerms {
+        let (a, b) = (self.avar_coefficients(), other.avar_coefficients());
+        Self::from_avar_coefficients([0, 1, 2, 3, 4].map(|k| a[k] - b[k]))
+    }
+
+    fn is_valid(&self) -> bool {
+        [
+            self.quantization,
+            self.white,
+            self.bias_instability,
+            self.random_walk,
+            self.ramp,
+        ]
+        .iter()
+        .all(|x| x.is_finite() && *x >= 0.0)
+    }
+}
+
+/// What was recorded.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RecordInfo {
+    /// The file the model was fitted to.
+    pub source: String,
+    /// Sample rate, Hz.
+    pub rate_hz: f64,
+    /// Samples.
+    pub samples: usize,
+    /// Duration, s.
+    pub duration_s: f64,
+    /// Groups present (0-based).
+    pub groups: Vec<usize>,
+    /// Sensor columns, in the interchange CSV's names (`g00x`, …).
+    pub columns: Vec<String>,
+}
+
+/// One sensor of one axis.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SensorModel {
+    /// Group (0-based).
+    pub group: usize,
+    /// Mean over the record, unit (bias plus whatever the board saw, e.g. gravity or Earth rate).
+    pub mean: f64,
+    /// Its own noise: what remains of its fitted terms once the shared processes are taken out.
+    pub independent: NoiseTerms,
+    /// Thermal coefficient, unit/°C, about the temperature model's reference (0 without a thermal effect).
+    pub thermal_per_c: f64,
+}
+
+/// A process that several sensors of one axis share (the same realisation added to each).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SharedProcess {
+    /// The effect it models: `common_mode`, `block_common_mode` or `common_mode_drift`.
+    pub kind: String,
+    /// Groups that share it.
+    pub groups: Vec<usize>,
+    /// Its terms.
+    pub terms: NoiseTerms,
+}
+
+/// One axis of the cluster.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AxisModel {
+    /// `gx`, …, `az`.
+    pub axis: String,
+    /// `deg/s` or `g`.
+    pub unit: String,
+    /// The typical sensor: the terms fitted to the per-τ median of the sensors' Allan deviations (thermal part
+    /// removed), which the twin plays for every sensor without effects.
+    pub typical: NoiseTerms,
+    /// The effects the diagnosis kept on this axis.
+    pub effects: Vec<String>,
+    /// Every sensor.
+    pub sensors: Vec<SensorModel>,
+    /// Processes shared by several sensors.
+    pub shared: Vec<SharedProcess>,
+}
+
+impl AxisModel {
+    /// Sensor kind and axis index of `self.axis` (`None` for a name that is not `g`/`a` + `x`/`y`/`z`).
+    pub fn kind_axis(&self) -> Option<(SensorKind, usize)> {
+        parse_axis(&self.axis)
+    }
+}
+
+/// `gx` → (Gyro, 0).
+pub fn parse_axis(name: &str) -> Option<(SensorKind, usize)> {
+    let mut c = name.chars();
+    let kind = match c.next()? {
+        'g' => SensorKind::Gyro,
+        'a' => SensorKind::Accel,
+        _ => return None,
+    };
+    let ch = c.next()?;
+    let axis = crate::formats::csv::AXIS_NAMES
+        .iter()
+        .position(|&a| a == ch)?;
+    c.next().is_none().then_some((kind, axis))
+}
+
+/// A sinusoid of the temperature.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Harmonic {
+    /// Period, s.
+    pub period_s: f64,
+    /// Amplitude, °C.
+    pub amplitude_c: f64,
+    /// Phase at the first sample, rad (`amplitude · sin(2π t / period + phase)`).
+    pub phase_rad: f64,
+}
+
+/// The board temperature: `start + drift·t + Σ harmonics + noise`, t counted from the record's first sample,
+/// fitted to the record's `temp_c`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TemperatureModel {
+    /// The reference of the thermal coefficients (the record's mean temperature), °C.
+    pub reference_c: f64,
+    /// Value of the fitted line at the first sample, °C.
+    pub start_c: f64,
+    /// Linear drift, °C/h.
+    pub drift_c_per_h: f64,
+    /// Sinusoids, largest first.
+    pub harmonics: Vec<Harmonic>,
+    /// The rest, as noise terms in °C.
+    pub noise: NoiseTerms,
+}
+
+/// An effect the diagnosis named (the fitted parameters live in the axes: shared processes, thermal coefficients,
+/// the sensors' own terms).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EffectSummary {
+    /// Kind, as the diagnosis names it.
+    pub kind: String,
+    /// `gyro` or `accel`.
+    pub sensor: String,
+    /// Axes, e.g. `xyz`.
+    pub axes: String,
+    /// τ range where it acts, s.
+    pub tau_s: [f64; 2],
+    /// Its largest share of the held-out cluster Allan variance.
+    pub share: f64,
+}
+
+/// The fitted model of a cluster (see the module docs and `docs/twin.md`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ClusterModel {
+    /// [`FORMAT`].
+    pub format: String,
+    /// The record it was fitted to.
+    pub record: RecordInfo,
+    /// The board temperature, if the record had one.
+    pub temperature: Option<TemperatureModel>,
+    /// The effects the diagnosis named.
+    pub effects: Vec<EffectSummary>,
+    /// Every axis with at least two sensors.
+    pub axes: Vec<AxisModel>,
+}
+
+impl ClusterModel {
+    /// The model as TOML.
+    pub fn to_toml(&self) -> Result<String, TwinError> {
+        toml::to_string(self).map_err(|e| TwinError::Invalid(format!("model to TOML: {e}")))
+    }
+
+    /// A model from TOML, checked ([`Self::validate`]).
+    pub fn from_toml(text: &str, path: &str) -> Result<Self, TwinError> {
+        let format = |reason: String| TwinError::Format {
+            path: path.into(),
+            reason,
+        };
+        let m: ClusterModel = toml::from_str(text).map_err(|e| format(e.to_string()))?;
+        if m.format != FORMAT {
+            return Err(format(format!(
+                "format \"{}\", expected \"{FORMAT}\"",
+                m.format
+            )));
+        }
+        m.validate().map_err(format)?;
+        Ok(m)
+    }
+
+    /// Writes the model to `path` (TOML).
+    pub fn save(&self, path: &Path) -> Result<(), TwinError> {
+        std::fs::write(path, self.to_toml()?).map_err(|source| TwinError::Io {
+            path: path.display().to_string(),
+            source,
+        })
+    }
+
+    /// Reads a model from `path` (TOML).
+    pub fn load(path: &Path) -> Result<Self, TwinError> {
+        let text = std::fs::read_to_string(path).map_err(|source| TwinError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_toml(&text, &path.display().to_string())
+    }
+
+    /// Checks what a hand-edited file could get wrong: positive rate and duration, finite non-negative terms,
+    /// known axis names, sensors and shared processes on groups of the record.
+    pub fn validate(&self) -> Result<(), String> {
+        let r = &self.record;
+        if !(r.rate_hz.is_finite() && r.rate_hz > 0.0) {
+            return Err(format!("record.rate_hz = {} must be > 0", r.rate_hz));
+        }
+        if !(r.duration_s.is_finite() && r.duration_s > 0.0) {
+            return Err(format!("record.duration_s = {} must be > 0", r.duration_s));
+        }
+        for a in &self.axes {
+            if a.kind_axis().is_none() {
+                return Err(format!("axis \"{}\": expected gx … az", a.axis));
+            }
+            let ok = |t: &NoiseTerms| t.is_valid();
+            if !ok(&a.typical) {
+                return Err(format!("{}: typical terms must be finite and ≥ 0", a.axis));
+            }
+            for s in &a.sensors {
+                if !ok(&s.independent) || !s.mean.is_finite() || !s.thermal_per_c.is_finite() {
+                    return Err(format!(
+                        "{} group {}: terms must be finite and ≥ 0",
+                        a.axis, s.group
+                    ));
+                }
+                if !r.groups.contains(&s.group) {
+                    return Err(format!(
+                        "{}: group {} is not in record.groups",
+                        a.axis, s.group
+                    ));
+                }
+            }
+            for p in &a.shared {
+                if !ok(&p.terms) {
+                    return Err(format!(
+                        "{} {}: terms must be finite and ≥ 0",
+                        a.axis, p.kind
+                    ));
+                }
+                if let Some(g) = p
+                    .groups
+                    .iter()
+                    .find(|g| !a.sensors.iter().any(|s| s.group == **g))
+                {
+                    return Err(format!(
+                        "{} {}: group {g} has no sensor on this axis",
+                        a.axis, p.kind
+                    ));
+                }
+            }
+        }
+        if let Some(t) = &self.temperature {
+            let finite = [t.reference_c, t.start_c, t.drift_c_per_h]
+                .iter()
+                .all(|x| x.is_finite());
+            let harmonics = t.harmonics.iter().all(|h| {
+                h.period_s.is_finite()
+                    && h.period_s > 0.0
+                    && h.amplitude_c.is_finite()
+                    && h.phase_rad.is_finite()
+            });
+            if !(finite && harmonics && t.noise.is_valid()) {
+                return Err(
+                    "temperature: values must be finite, periods > 0, noise terms ≥ 0".into(),
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,312 @@
+use super::*;
+use crate::allan::{Analyzer, DevKind, Options as AllanOptions, TauSpec};
+
+fn terms(white: f64, flicker: f64, rw: f64) -> NoiseTerms {
+    NoiseTerms {
+        quantization: 0.0,
+        white,
+        bias_instability: flicker,
+        random_walk: rw,
+        ramp: 0.0,
+    }
+}
+
+/// A small model: 6 groups, gyro x and accel z, a shared flicker process on 4 gyros, a thermal coefficient on the
+/// accelerometers, a temperature with a drift and a 1-h sinusoid.
+fn model() -> ClusterModel {
+    let groups: Vec<usize> = (0..6).collect();
+    let gx = AxisModel {
+        axis: "gx".into(),
+        unit: "deg/s".into(),
+        typical: terms(0.01, 0.002, 1e-5),
+        effects: vec!["common_mode".into()],
+        sensors: groups
+            .iter()
+            .map(|&g| SensorModel {
+                group: g,
+                mean: 0.1 * g as f64,
+                independent: terms(0.01, 0.001, 1e-5),
+                thermal_per_c: 0.0,
+            })
+            .collect(),
+        shared: vec![SharedProcess {
+            kind: "common_mode".into(),
+            groups: vec![0, 1, 2, 3],
+            terms: terms(0.0, 0.004, 0.0),
+        }],
+    };
+    let az = AxisModel {
+        axis: "az".into(),
+        unit: "g".into(),
+        typical: terms(1e-4, 0.0, 0.0),
+        effects: vec!["thermal".into()],
+        sensors: groups
+            .iter()
+            .map(|&g| SensorModel {
+                group: g,
+                mean: 1.0,
+                independent: terms(1e-4, 0.0, 0.0),
+                thermal_per_c: 2e-4,
+            })
+            .collect(),
+        shared: vec![],
+    };
+    ClusterModel {
+        format: FORMAT.into(),
+        record: RecordInfo {
+            source: "test".into(),
+            rate_hz: 10.0,
+            samples: 72_000,
+            duration_s: 7200.0,
+            groups: groups.clone(),
+            columns: vec![],
+        },
+        temperature: Some(TemperatureModel {
+            reference_c: 21.0,
+            start_c: 20.0,
+            drift_c_per_h: 1.0,
+            harmonics: vec![Harmonic {
+                period_s: 3600.0,
+                amplitude_c: 1.5,
+                phase_rad: 0.3,
+            }],
+            noise: NoiseTerms::default(),
+        }),
+        effects: vec![],
+        axes: vec![gx, az],
+    }
+}
+
+#[test]
+fn a_model_round_trips_through_toml_and_bad_files_are_refused() {
+    let m = model();
+    let text = m.to_toml().unwrap();
+    assert_eq!(ClusterModel::from_toml(&text, "m.toml").unwrap(), m);
+    let other = text.replace(FORMAT, "imu-cluster-twin/9");
+    assert!(matches!(
+        ClusterModel::from_toml(&other, "m.toml"),
+        Err(TwinError::Format { .. })
+    ));
+    let negative = text.replace("white = 0.01", "white = -0.01");
+    assert!(ClusterModel::from_toml(&negative, "m.toml").is_err());
+    let mut stray = m.clone();
+    stray.axes[0].shared[0].groups = vec![0, 1, 2, 9];
+    let text = toml::to_string(&stray).unwrap();
+    assert!(ClusterModel::from_toml(&text, "m.toml").is_err(), "{text}");
+    let mut wrong_axis = m.clone();
+    wrong_axis.axes[0].axis = "gw".into();
+    let text = toml::to_string(&wrong_axis).unwrap();
+    assert!(ClusterModel::from_toml(&text, "m.toml").is_err());
+}
+
+/// The terms and their Allan-variance coefficients are inverse; `less` subtracts in variance and stops at zero.
+#[test]
+fn noise_terms_convert_and_subtract_in_variance() {
+    let t = NoiseTerms {
+        quantization: 1e-3,
+        white: 2e-2,
+        bias_instability: 3e-3,
+        random_walk: 4e-4,
+        ramp: 5e-6,
+    };
+    let back = NoiseTerms::from_avar_coefficients(t.avar_coefficients());
+    for (a, b) in back.avar_coefficients().iter().zip(t.avar_coefficients()) {
+        assert!((a / b - 1.0).abs() < 1e-12);
+    }
+    // σ²(τ) from the IEEE 952 formulas, written out independently.
+    let tau = 7.0;
+    let expect = 3.0 * 1e-6 / (tau * tau)
+        + 4e-4 / tau
+        + 2.0 * 2f64.ln() / std::f64::consts::PI * 9e-6
+        + 16e-8 * tau / 3.0
+        + 25e-12 * tau * tau / 2.0;
+    assert!((t.avar(tau) / expect - 1.0).abs() < 1e-12);
+    let half = NoiseTerms {
+        white: 2e-2 / 2f64.sqrt(),
+        ..t
+    };
+    let d = t.less(&half);
+    assert!((d.white - 2e-2 / 2f64.sqrt()).abs() < 1e-12);
+    assert_eq!(half.less(&t).white, 0.0);
+}
+
+/// The temperature fit recovers a line and a sinusoid (period, amplitude, phase) buried in white noise.
+#[test]
+fn temperature_fit_recovers_drift_and_period() {
+    let m = model();
+    let truth = m.temperature.as_ref().unwrap();
+    let rate = 2.0;
+    let n = 4 * 3600 * 2;
+    let sampling = crate::sim::noise::Sampling::new(rate, n as f64 / rate).unwrap();
+    let mut noisy = truth.clone();
+    noisy.noise.white = 0.05;
+    let t_s: Vec<f64> = (0..n).map(|k| k as f64 / rate).collect();
+    let temp = play::temperature(&noisy, &sampling, n, 5).unwrap();
+    let f = fit::fit_temperature(&t_s, &temp, 1.0 / rate);
+    assert!((f.drift_c_per_h - 1.0).abs() < 0.01, "{f:?}");
+    assert!((f.start_c - 20.0).abs() < 0.02, "{f:?}");
+    let h = f.harmonics[0];
+    assert!((h.period_s / 3600.0 - 1.0).abs() < 0.01, "{f:?}");
+    assert!((h.amplitude_c - 1.5).abs() < 0.02, "{f:?}");
+    assert!((h.phase_rad - 0.3).abs() < 0.03, "{f:?}");
+    assert!((f.noise.white / 0.05 - 1.0).abs() < 0.1, "{f:?}");
+}
+
+/// A played sensor's Allan variance is its model's, shared processes included: the analytic σ²(τ) of the terms
+/// (independent + shared for members) against the played record's, at every octave with ≥ 100 blocks (within
+/// 4 σ of the estimate); the shared process makes members correlate and leaves the others alone.
+#[test]
+fn play_gives_the_modelled_allan_variance_and_the_shared_correlation() {
+    let m = model();
+    let rec = play(
+        &m,
+        &PlayOptions {
+            seed: 3,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let gx = &m.axes[0];
+    let tau0 = 0.1;
+    let mut an = Analyzer::new();
+    for c in rec.columns.iter().filter(|c| c.kind == SensorKind::Gyro) {
+        let s = &gx.sensors[c.group];
+        let mut expect = s.independent;
+        if c.group < 4 {
+            let [a, b] = [
+                expect.avar_coefficients(),
+                gx.shared[0].terms.avar_coefficients(),
+            ];
+            expect = NoiseTerms::from_avar_coefficients([0, 1, 2, 3, 4].map(|k| a[k] + b[k]));
+        }
+        let mean = crate::stats::mean(&c.data);
+        assert!(
+            (mean - s.mean).abs() < 0.01,
+            "group {} mean {mean}",
+            c.group
+        );
+        for p in an.analyze(
+            DevKind::Oadev,
+            &c.data,
+            tau0,
+            &TauSpec::Octave,
+            &AllanOptions::default(),
+        ) {
+            if c.data.len() / p.m < 100 {
+                continue;
+            }
+            let ratio = p.dev.powi(2) / expect.avar(p.tau_s);
+            let sd = (2.0 / p.edf.unwrap()).sqrt();
+            assert!(
+                (ratio - 1.0).abs() < 4.0 * sd + 0.05,
+                "group {} τ {}: ratio {ratio}",
+                c.group,
+                p.tau_s
+            );
+        }
+    }
+    let col = |g: usize| {
+        &rec.columns
+            .iter()
+            .find(|c| c.kind == SensorKind::Gyro && c.group == g)
+            .unwrap()
+            .data
+    };
+    let corr = |a: &[f64], b: &[f64]| {
+        // Correlation of 100-s block means (where the shared flicker dominates).
+        let blocks = |x: &[f64]| -> Vec<f64> { x.chunks(1000).map(crate::stats::mean).collect() };
+        let (a, b) = (blocks(a), blocks(b));
+        let (ma, mb) = (crate::stats::mean(&a), crate::stats::mean(&b));
+        let cov: f64 = a.iter().zip(&b).map(|(x, y)| (x - ma) * (y - mb)).sum();
+        let va: f64 = a.iter().map(|x| (x - ma).powi(2)).sum();
+        let vb: f64 = b.iter().map(|y| (y - mb).powi(2)).sum();
+        cov / (va * vb).sqrt()
+    };
+    assert!(corr(col(0), col(1)) > 0.5, "members share the process");
+    assert!(corr(col(4), col(5)).abs() < 0.4, "non-members do not");
+    // Thermal: the accelerometers follow the temperature with their coefficient.
+    let az = rec
+        .columns
+        .iter()
+        .find(|c| c.kind == SensorKind::Accel && c.axis == 2)
+        .unwrap();
+    let t = rec.temp_c.as_ref().unwrap();
+    let (mt, ma) = (crate::stats::mean(t), crate::stats::mean(&az.data));
+    let beta = t
+        .iter()
+        .zip(&az.data)
+        .map(|(t, a)| (t - mt) * (a - ma))
+        .sum::<f64>()
+        / t.iter().map(|t| (t - mt).powi(2)).sum::<f64>();
+    assert!((beta / 2e-4 - 1.0).abs() < 0.05, "β {beta}");
+    // Without effects: no temperature in the sensors, the typical terms everywhere.
+    let plain = play(
+        &m,
+        &PlayOptions {
+            seed: 3,
+            without_effects: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let az = plain
+        .columns
+        .iter()
+        .find(|c| c.kind == SensorKind::Accel && c.axis == 2)
+        .unwrap();
+    let ma = crate::stats::mean(&az.data);
+    let beta = t
+        .iter()
+        .zip(&az.data)
+        .map(|(t, a)| (t - mt) * (a - ma))
+        .sum::<f64>()
+        / t.iter().map(|t| (t - mt).powi(2)).sum::<f64>();
+    assert!(beta.abs() < 2e-5, "β without effects {beta}");
+}
+
+/// Two records of one model (different seeds) are not told apart; a record with twice the white noise on one axis
+/// is, on that axis only.
+#[test]
+fn compare_tells_a_different_cluster_from_a_fresh_record() {
+    let mut m = model();
+    m.axes[1]
+        .sensors
+        .iter_mut()
+        .for_each(|s| s.thermal_per_c = 0.0);
+    let a = play(
+        &m,
+        &PlayOptions {
+            seed: 1,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let b = play(
+        &m,
+        &PlayOptions {
+            seed: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let same = compare(&a, &b, compare::P_FALSE).unwrap();
+    assert!(same.significant_axes.is_empty(), "{}", same.summary());
+    let mut louder = m.clone();
+    louder.axes[1]
+        .sensors
+        .iter_mut()
+        .for_each(|s| s.independent.white *= 2.0);
+    let c = play(
+        &louder,
+        &PlayOptions {
+            seed: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let diff = compare(&a, &c, compare::P_FALSE).unwrap();
+    assert_eq!(diff.significant_axes, ["az"], "{}", diff.summary());
+    // The simulation is the noisier one: the scan of −z fires.
+    let az = diff.axes.iter().find(|x| x.axis == "az").unwrap();
+    assert!(az.cluster.scan[1] > az.cluster.threshold);
+}
