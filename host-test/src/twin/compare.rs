@@ -3,9 +3,11 @@
 //!
 //! Per axis, two curves of each recording: the **cluster** (equal-weight mean of the axis's sensors) and the
 //! **typical sensor** (per-τ median of the sensors' deviations). Both are octave overlapping Allan deviations with
-//! Greenhall EDFs and χ² intervals. At each τ both have, the z-score of the ratio of the two variance estimates is
-//! `ln(σ²_a/σ²_b) / √(2/ν_a + 2/ν_b)` (each `ln σ²` has variance ≈ 2/ν; the median of N sensors is taken as
-//! carrying `2N/π` times one sensor's EDF, the median's efficiency for normal data). The verdict is the
+//! Greenhall EDFs and χ² intervals. At each τ both have, the gap is `g = ln(σ_a/σ_b)` and its z-score
+//! `g / √(1/2ν_a + 1/2ν_b + tol²)`, as the diagnosis scores a gap (each `ln σ` has variance ≈ 1/2ν; `tol`, 3 % by
+//! default, the model tolerance: at short τ the EDF runs into the tens of thousands, and no noise model is exact
+//! to a few tenths of a per cent; the median of N sensors is taken as carrying `2N/π` times one sensor's EDF, the
+//! median's efficiency for normal data). The verdict is the
 //! diagnosis's scan statistic over τ (`diagnose::scan_statistic`: the largest standardised sum over a band of
 //! contiguous τ), in both directions — a simulation too noisy or too quiet — for both curves, each of the four
 //! tests at `p_false / 4`: an axis is reproduced unless one exceeds its threshold.
@@ -18,8 +20,35 @@ use crate::stats::median;
 
 /// Default false-alarm probability of the verdict per axis (the diagnosis's `p_false`).
 pub const P_FALSE: f64 = 2e-3;
+/// Default tolerance of a model, in ln deviation (the diagnosis's `model_tolerance`): a simulation within 3 % of the
+/// record's deviation at a τ is not told apart there, however many blocks the τ has.
+pub const TOLERANCE: f64 = 0.03;
 /// Fewest averaging blocks of a τ compared (the diagnosis's `min_blocks`).
 pub const MIN_BLOCKS: usize = 4;
+
+/// How to compare.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct CompareOptions {
+    /// False-alarm probability of the verdict per axis.
+    pub p_false: f64,
+    /// Model tolerance, ln deviation.
+    pub tolerance: f64,
+    /// The second recording was played from a model fitted on a *third* record (of the same length: not the
+    /// first): its deviations carry that record's estimation error as well as their own, so its `1/2ν` term counts
+    /// twice. (When the model was fitted on the first recording itself, its errors follow that record, and this
+    /// stays off.)
+    pub fitted_elsewhere: bool,
+}
+
+impl Default for CompareOptions {
+    fn default() -> Self {
+        Self {
+            p_false: P_FALSE,
+            tolerance: TOLERANCE,
+            fitted_elsewhere: false,
+        }
+    }
+}
 
 /// One recording's deviation at one τ.
 #[derive(Clone, Copy, Debug, Serialize)]
@@ -43,7 +72,9 @@ pub struct TauGap {
     pub a: Dev,
     /// The second (the simulation).
     pub b: Dev,
-    /// z-score of ln(σ²_a / σ²_b): > 0 when the first is noisier.
+    /// The gap ½·ln(σ²_a / σ²_b) (ln deviation).
+    pub gap: f64,
+    /// Its z-score (see the module docs): > 0 when the first is noisier.
     pub z: f64,
 }
 
@@ -80,8 +111,8 @@ pub struct AxisComparison {
 /// The comparison.
 #[derive(Clone, Debug, Serialize)]
 pub struct Comparison {
-    /// False-alarm probability per axis.
-    pub p_false: f64,
+    /// How it was compared.
+    pub options: CompareOptions,
     /// Per axis present in both.
     pub axes: Vec<AxisComparison>,
     /// Axes where the second does not reproduce the first.
@@ -158,16 +189,20 @@ fn interval(dev: f64, edf: f64) -> (f64, f64) {
     }
 }
 
-fn verdict(a: &[(f64, Dev)], b: &[(f64, Dev)], p: f64) -> CurveVerdict {
+fn verdict(a: &[(f64, Dev)], b: &[(f64, Dev)], o: &CompareOptions) -> CurveVerdict {
+    let (p, tol) = (o.p_false / 4.0, o.tolerance);
+    let kb = if o.fitted_elsewhere { 2.0 } else { 1.0 };
     let taus: Vec<TauGap> = a
         .iter()
         .filter_map(|(t, da)| {
             let (_, db) = b.iter().find(|(tb, _)| (tb / t - 1.0).abs() < 1e-6)?;
-            let z = (da.dev.powi(2) / db.dev.powi(2)).ln() / (2.0 / da.edf + 2.0 / db.edf).sqrt();
+            let gap = (da.dev / db.dev).ln();
+            let z = gap / (0.5 / da.edf + kb * 0.5 / db.edf + tol * tol).sqrt();
             z.is_finite().then_some(TauGap {
                 tau_s: *t,
                 a: *da,
                 b: *db,
+                gap,
                 z,
             })
         })
@@ -201,9 +236,13 @@ fn verdict(a: &[(f64, Dev)], b: &[(f64, Dev)], p: f64) -> CurveVerdict {
     }
 }
 
-/// Compares recording `b` (a simulation) with `a` (the real one) at false-alarm probability `p_false` per axis.
-/// Both must have the same sample rate (within 10⁻⁶).
-pub fn compare(a: &Recording, b: &Recording, p_false: f64) -> Result<Comparison, TwinError> {
+/// Compares recording `b` (a simulation) with `a` (the real one). Both must have the same sample rate (within
+/// 10⁻⁶).
+pub fn compare(
+    a: &Recording,
+    b: &Recording,
+    opts: &CompareOptions,
+) -> Result<Comparison, TwinError> {
     let ta = a
         .sample_interval_s()
         .ok_or_else(|| TwinError::Invalid("first recording: fewer than two samples".into()))?;
@@ -227,8 +266,8 @@ pub fn compare(a: &Recording, b: &Recording, p_false: f64) -> Result<Comparison,
             ) else {
                 continue;
             };
-            let cluster = verdict(&ca.0, &cb.0, p_false / 4.0);
-            let typical = verdict(&ca.1, &cb.1, p_false / 4.0);
+            let cluster = verdict(&ca.0, &cb.0, opts);
+            let typical = verdict(&ca.1, &cb.1, opts);
             axes.push(AxisComparison {
                 axis: format!("{}{}", kind.prefix(), crate::formats::csv::AXIS_NAMES[axis]),
                 sensors: [na, nb],
@@ -249,7 +288,7 @@ pub fn compare(a: &Recording, b: &Recording, p_false: f64) -> Result<Comparison,
         .map(|a| a.axis.clone())
         .collect();
     Ok(Comparison {
-        p_false,
+        options: *opts,
         axes,
         significant_axes,
     })
@@ -284,7 +323,7 @@ impl Comparison {
         s.push_str(&if self.significant_axes.is_empty() {
             format!(
                 "every axis reproduced (p_false {} per axis)\n",
-                self.p_false
+                self.options.p_false
             )
         } else {
             format!("not reproduced on: {}\n", self.significant_axes.join(", "))

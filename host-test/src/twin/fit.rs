@@ -5,9 +5,9 @@
 //!   `β·(T − T_ref)` removed, so that the temperature is not counted twice (once in β, once as random walk).
 //! - **Typical sensor**: five terms (Q, N, B, K, R) fitted to the per-τ median of the sensors' octave Allan
 //!   deviations, the median scaled to a mean (χ² of the EDF), as the diagnosis does.
-//! - **Own terms**: a sensor's own fit where the diagnosis found unequal sensors (`unequal_noise`, `outlier_sensor`),
-//!   else the typical terms: without a level effect the sensors are equal within their scatter, and a fit per sensor
-//!   would only copy its estimation noise into the twin.
+//! - **Own terms**: where the diagnosis found unequal sensors (`unequal_noise`, `outlier_sensor`), the typical terms
+//!   scaled by its per-sensor level factors; else the typical terms: a five-term fit per sensor would copy each
+//!   sensor's long-τ estimation error (a handful of blocks) into the twin.
 //! - **Shared processes**: the terms the diagnosis fitted to each shared process; a member's independent terms are
 //!   its own less the processes it shares, term by term.
 //! - **Temperature**: a line and up to two sinusoids (periods found by a least-squares scan), the rest as noise
@@ -128,27 +128,74 @@ fn fit_axis(
         })
         .collect();
     let typical = fit_terms(&typical_points(&points));
-    let own: Vec<NoiseTerms> = if af.level.is_some() {
-        points.iter().map(|p| fit_terms(p)).collect()
-    } else {
-        vec![typical; ns]
+    // Unequal sensors: the typical terms scaled by the diagnosis's level factors (a per-sensor five-term fit would
+    // copy each sensor's long-τ estimation error, from a handful of blocks, into the twin).
+    let own: Vec<NoiseTerms> = match &af.level {
+        Some(q) if q.len() == ns => q
+            .iter()
+            .map(|&q| {
+                NoiseTerms::from_avar_coefficients(
+                    typical.avar_coefficients().map(|c| c * q.max(0.0)),
+                )
+            })
+            .collect(),
+        _ => vec![typical; ns],
     };
-    let shared: Vec<(SharedProcess, &[usize])> = af
-        .cross
-        .iter()
-        .filter_map(|(kind, c)| match c {
-            Cross::Shared { members, share } => Some((
+    // Shared processes: one per set of members (the diagnosis may name two on the same sensors, e.g. a common mode
+    // and a common drift: their sum is what the record shows), their terms refitted on the whole record.
+    let mut sets: Vec<(Vec<usize>, Vec<&'static str>, Terms)> = Vec::new();
+    for (kind, c) in &af.cross {
+        if let Cross::Shared { members, share } = c {
+            let mut m = members.clone();
+            m.sort_unstable();
+            match sets.iter_mut().find(|(x, _, _)| *x == m) {
+                Some((_, kinds, terms)) => {
+                    kinds.push(kind);
+                    terms
+                        .0
+                        .iter_mut()
+                        .zip(share.part.0)
+                        .for_each(|(a, b)| *a += b);
+                }
+                None => sets.push((m, vec![kind], share.part)),
+            }
+        }
+    }
+    let disjoint = sets.iter().enumerate().all(|(i, (a, _, _))| {
+        sets[i + 1..]
+            .iter()
+            .all(|(b, _, _)| a.iter().all(|x| !b.contains(x)))
+    });
+    let shared: Vec<(SharedProcess, Vec<usize>)> = sets
+        .into_iter()
+        .map(|(members, kinds, diag)| {
+            let mean: Vec<f64> = (0..cleaned[0].len())
+                .map(|k| members.iter().map(|&i| cleaned[i][k]).sum::<f64>() / members.len() as f64)
+                .collect();
+            let terms = if disjoint {
+                let pts = an.analyze(
+                    DevKind::Oadev,
+                    &mean,
+                    tau0,
+                    &TauSpec::Octave,
+                    &AllanOptions::default(),
+                );
+                let own_of: Vec<&NoiseTerms> = members.iter().map(|&i| &own[i]).collect();
+                fit_shared(&pts, &own_of)
+            } else {
+                NoiseTerms::from_avar_coefficients(diag.0)
+            };
+            (
                 SharedProcess {
-                    kind: (*kind).into(),
+                    kind: kinds.join("+"),
                     groups: members
                         .iter()
                         .filter_map(|&i| af.groups.get(i).copied())
                         .collect(),
-                    terms: NoiseTerms::from_avar_coefficients(share.part.0),
+                    terms,
                 },
-                members.as_slice(),
-            )),
-            Cross::Thermal { .. } => None,
+                members,
+            )
         })
         .collect();
     let sensors = (0..ns)
@@ -173,6 +220,33 @@ fn fit_axis(
         sensors,
         shared: shared.into_iter().map(|(p, _)| p).collect(),
     })
+}
+
+/// The terms of a process shared by `own.len()` sensors, from the Allan variance of their mean (`points`): with a
+/// shared part S and the members' own terms O_i (which contain S), `σ²_mean = S + Σ(O_i − S)/M²`, so
+/// `S = (σ²_mean − mean(O_i)/M) / (1 − 1/M)` at each τ, fitted (five terms, non-negative, weighted by the
+/// EDF of the mean's variance). Fitted on the whole record, so that the twin's cluster matches the record's where
+/// the diagnosis's first-half shares would leave a bias of a few per cent (significant at short τ, where the EDF is
+/// in the tens of thousands).
+fn fit_shared(points: &[AnalysisPoint], own: &[&NoiseTerms]) -> NoiseTerms {
+    let m = own.len() as f64;
+    if m < 2.0 {
+        return NoiseTerms::default();
+    }
+    let rows: Vec<([f64; 5], f64, f64)> = points
+        .iter()
+        .filter(|p| p.dev > 0.0 && p.dev.is_finite())
+        .map(|p| {
+            let v = p.dev * p.dev;
+            let own_mean = own.iter().map(|o| o.avar(p.tau_s)).sum::<f64>() / m;
+            let y = (v - own_mean / m) / (1.0 - 1.0 / m);
+            let edf = p.edf.unwrap_or(p.n as f64).max(1.0);
+            (Terms::basis(p.tau_s), y, edf / 2.0 / (v * v))
+        })
+        .collect();
+    crate::noisefit::nnls::<5>(&rows)
+        .map(NoiseTerms::from_avar_coefficients)
+        .unwrap_or_default()
 }
 
 /// The per-τ median of the sensors' deviations, scaled to a mean (`ν / χ²_ν median`, as the diagnosis's typical

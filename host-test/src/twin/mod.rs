@@ -17,7 +17,7 @@ use crate::noisefit::FLICKER_AVAR;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-pub use compare::{Comparison, compare};
+pub use compare::{CompareOptions, Comparison, compare};
 pub use fit::fit;
 pub use play::{PlayOptions, play};
 

@@ -289,7 +289,7 @@ fn compare_tells_a_different_cluster_from_a_fresh_record() {
         },
     )
     .unwrap();
-    let same = compare(&a, &b, compare::P_FALSE).unwrap();
+    let same = compare(&a, &b, &CompareOptions::default()).unwrap();
     assert!(same.significant_axes.is_empty(), "{}", same.summary());
     let mut louder = m.clone();
     louder.axes[1]
@@ -304,7 +304,7 @@ fn compare_tells_a_different_cluster_from_a_fresh_record() {
         },
     )
     .unwrap();
-    let diff = compare(&a, &c, compare::P_FALSE).unwrap();
+    let diff = compare(&a, &c, &CompareOptions::default()).unwrap();
     assert_eq!(diff.significant_axes, ["az"], "{}", diff.summary());
     // The simulation is the noisier one: the scan of −z fires.
     let az = diff.axes.iter().find(|x| x.axis == "az").unwrap();

@@ -80,3 +80,5 @@ pub fn csv(name: &str) -> (Vec<String>, Vec<Vec<String>>) {
 pub fn rel(a: f64, b: f64) -> f64 {
     if a == b { 0.0 } else { ((a - b) / b).abs() }
 }
+
+pub mod effects;

@@ -4,7 +4,7 @@ use crate::common::spinner;
 use anyhow::{Context, Result};
 use host_test::load;
 use host_test::plot::{Curve, Panel, Style, adev_panels};
-use host_test::twin::compare::{CurveVerdict, P_FALSE};
+use host_test::twin::compare::{CurveVerdict, P_FALSE, TOLERANCE};
 use shared::wire::clock::FPGA_BASE_RATE_MILLIHZ;
 use std::path::PathBuf;
 
@@ -20,6 +20,13 @@ pub struct Args {
     /// False-alarm probability of the verdict per axis.
     #[arg(long, default_value_t = P_FALSE)]
     p_false: f64,
+    /// Model tolerance, ln deviation (a simulation within it at a τ is not told apart there).
+    #[arg(long, default_value_t = TOLERANCE)]
+    tolerance: f64,
+    /// SIM was played from a model fitted on another record than REAL (of the same length): count that record's
+    /// estimation error too.
+    #[arg(long)]
+    fitted_elsewhere: bool,
 }
 
 fn curve(v: &CurveVerdict, real: bool, style: Style, label: &str) -> Curve {
@@ -37,7 +44,15 @@ pub fn run(a: Args) -> Result<()> {
     let real = load::load_with(&a.real, None, FPGA_BASE_RATE_MILLIHZ)?.recording;
     let sim = load::load_with(&a.sim, None, FPGA_BASE_RATE_MILLIHZ)?.recording;
     pb.set_message("Allan deviations and verdicts");
-    let c = host_test::twin::compare(&real, &sim, a.p_false)?;
+    let c = host_test::twin::compare(
+        &real,
+        &sim,
+        &host_test::twin::CompareOptions {
+            p_false: a.p_false,
+            tolerance: a.tolerance,
+            fitted_elsewhere: a.fitted_elsewhere,
+        },
+    )?;
     pb.finish_and_clear();
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let json = a.out.join("compare.json");

@@ -1,0 +1,73 @@
+//! Shared by the acceptance tests of the diagnosis and of the twin: the 8-h, 16-group, 5 Hz static record of the
+//! seed preset, and the effects injected into it at calibrated strengths.
+
+use host_test::allan::{DevKind, deviation};
+use host_test::diagnose::Groups;
+use host_test::sim::preset::seed_config;
+use host_test::sim::{Axis, Channel, CommonMode, SimConfig, Simulator, Thermal};
+
+pub const SEED: u64 = 7_200_001;
+pub const RATE_HZ: f64 = 5.0;
+pub const HOURS: f64 = 8.0;
+/// The longest τ a half holds with 4 blocks: T/8.
+pub const TAU_LONG_S: f64 = HOURS * 3600.0 / 8.0;
+
+pub fn config(seed: u64) -> SimConfig {
+    let mut cfg = seed_config(seed).unwrap();
+    cfg.rate_hz = RATE_HZ;
+    cfg.samples = (HOURS * 3600.0 * RATE_HZ) as u64;
+    cfg
+}
+
+/// Expected Allan variance of the 16-group mean of `channel` at τ, without any effect.
+pub fn cluster_avar(cfg: &SimConfig, channel: Channel, tau_s: f64) -> f64 {
+    let groups: Vec<usize> = (0..16).collect();
+    Simulator::new(cfg.clone())
+        .unwrap()
+        .expected_mean_avar(channel, &groups, tau_s)
+        .unwrap()
+}
+
+/// Board temperature following the orbit (period 1.5 h, 0.4 °C amplitude) on a slow 0.08 °C/h ramp, 1.4 °C peak
+/// to peak over the record; coefficients on `axes` with a 30 % spread between parts, the mean scaled so
+/// that the shared thermal bias adds at most `added` × the cluster's AVAR at any octave τ up to T/8 (3: ADEV ≤ ×2).
+pub fn thermal(cfg: &SimConfig, axes: &[Axis], added: f64) -> Thermal {
+    let mut t = Thermal {
+        mean_c: 20.0,
+        amplitude_c: 0.4,
+        period_s: 1.5 * 3600.0,
+        phase_rad: 0.4,
+        drift_c_per_h: 0.08,
+        coef: [0.0; 6],
+        coef_sd: [0.0; 6],
+    };
+    let dt = 1.0 / RATE_HZ;
+    let temp: Vec<f64> = (0..cfg.samples).map(|i| t.temp_at(i as f64 * dt)).collect();
+    let ms: Vec<usize> = (0..20)
+        .map(|k| 1usize << k)
+        .filter(|&m| m as f64 * dt <= TAU_LONG_S)
+        .collect();
+    let temp_avar = deviation(DevKind::Oadev, &temp, dt, &ms);
+    for a in axes {
+        let ch = a.channels()[0];
+        let worst = temp_avar
+            .iter()
+            .map(|p| p.dev.powi(2) / cluster_avar(cfg, ch, p.tau_s))
+            .fold(0.0, f64::max);
+        let coef = (added / worst).sqrt();
+        t.coef[a.index()] = coef;
+        t.coef_sd[a.index()] = 0.3 * coef;
+    }
+    t
+}
+
+pub fn blocks(cfg: &mut SimConfig, size: usize, axes: &[Axis], rho: f64) -> Groups {
+    let mut out = Vec::new();
+    for b in 0..16 / size {
+        let g: Vec<usize> = (b * size..(b + 1) * size).collect();
+        cfg.common
+            .push(CommonMode::block(&format!("b{b}"), &g, axes, rho, rho));
+        out.push(g);
+    }
+    Groups::Blocks(out)
+}

@@ -1,0 +1,153 @@
+//! Acceptance of the twin (`docs/twin.md`): for every effect kind the diagnosis names, injected as in its own
+//! acceptance tests (8-h, 16-group, 5 Hz records of the seed preset, `common`), the model fitted on record A of a
+//! board reproduces a *fresh* record B of the same board (same `board_seed`: the same parts, coefficients and
+//! calibration; independent noise) — `compare(B, twin)` significant on no axis — and the twin without effects does
+//! not, on the effect's axes. The model goes through its TOML file on the way.
+
+mod common;
+
+use common::effects::*;
+use host_test::diagnose::{Options, diagnose};
+use host_test::sim::{
+    Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, SimConfig,
+};
+use host_test::simcli::recording;
+use host_test::twin::{self, ClusterModel, CompareOptions, PlayOptions};
+
+/// B against a model fitted on A: both records' estimation errors count.
+const FITTED_ON_A: CompareOptions = CompareOptions {
+    fitted_elsewhere: true,
+    p_false: host_test::twin::compare::P_FALSE,
+    tolerance: host_test::twin::compare::TOLERANCE,
+};
+
+/// Seeds of this file (none used while tuning the method).
+const BASE: u64 = 7_300_001;
+
+/// Fits on A, plays the twin with and without effects, compares both with a fresh B; returns the kinds named.
+fn close_the_loop(cfg: SimConfig, effect_axes: &[&str]) -> Vec<String> {
+    let board = Some(cfg.seed);
+    let a = recording(SimConfig {
+        board_seed: board,
+        ..cfg.clone()
+    })
+    .unwrap();
+    let report = diagnose(&a, &Options::default()).unwrap();
+    let kinds: Vec<String> = report.effects.iter().map(|e| e.kind.clone()).collect();
+    let model = twin::fit(&a, &report, "A").unwrap();
+    let model = ClusterModel::from_toml(&model.to_toml().unwrap(), "A.toml").unwrap();
+    drop(a);
+    let b = recording(SimConfig {
+        seed: cfg.seed + 500_000,
+        board_seed: board,
+        ..cfg
+    })
+    .unwrap();
+    let with = twin::play(
+        &model,
+        &PlayOptions {
+            seed: 11,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let c = twin::compare(&b, &with, &FITTED_ON_A).unwrap();
+    eprintln!("effects {kinds:?}\ntwin:\n{}", c.summary());
+    assert!(
+        c.significant_axes.is_empty(),
+        "the twin of A must reproduce B: {}",
+        c.summary()
+    );
+    drop(with);
+    let plain = twin::play(
+        &model,
+        &PlayOptions {
+            seed: 11,
+            without_effects: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let c0 = twin::compare(&b, &plain, &FITTED_ON_A).unwrap();
+    eprintln!("without effects:\n{}", c0.summary());
+    for ax in effect_axes {
+        assert!(
+            c0.significant_axes.iter().any(|s| s == ax),
+            "without effects the twin must miss {ax}: {}",
+            c0.summary()
+        );
+    }
+    kinds
+}
+
+#[test]
+fn common_mode_in_the_white_region() {
+    let mut cfg = config(BASE);
+    cfg.common.push(CommonMode::all(&Axis::ALL[..3], 0.1, 0.1));
+    let k = close_the_loop(cfg, &["gx", "gy", "gz"]);
+    assert!(k.iter().any(|k| k == "common_mode"), "{k:?}");
+}
+
+#[test]
+fn shared_flicker_on_gyro_y() {
+    let mut cfg = config(BASE + 1);
+    cfg.common.push(CommonMode::all(&[Axis::GyroY], 0.0, 0.15));
+    let k = close_the_loop(cfg, &["gy"]);
+    assert!(k.iter().any(|k| k == "common_mode"), "{k:?}");
+}
+
+#[test]
+fn shared_random_walk_drift() {
+    let mut cfg = config(BASE + 2);
+    // ADEV ×3 at T/8 (stronger than the diagnosis's ×2 detection test: two measured records compared are √2 less
+    // sensitive than a record against its model).
+    let k = (8.0 * 9.0 * cluster_avar(&cfg, Channel::GyroBY, TAU_LONG_S) / TAU_LONG_S).sqrt();
+    cfg.drift.push(CommonDrift {
+        groups: None,
+        axes: vec![Axis::GyroY],
+        kind: DriftKind::RandomWalk { k },
+    });
+    let k = close_the_loop(cfg, &["gy"]);
+    assert!(k.iter().any(|k| k == "common_mode_drift"), "{k:?}");
+}
+
+#[test]
+fn blocks_of_gyro_groups() {
+    let mut cfg = config(BASE + 3);
+    blocks(&mut cfg, 4, &Axis::ALL[..3], 0.3);
+    let k = close_the_loop(cfg, &["gx", "gy", "gz"]);
+    assert!(k.iter().any(|k| k == "block_common_mode"), "{k:?}");
+}
+
+#[test]
+fn thermal_bias_of_the_accelerometers() {
+    let mut cfg = config(BASE + 4);
+    // ADEV ×4 at the worst octave (the diagnosis's own test: ×2.5): two measured records compared are less sensitive
+    // than a record against its model.
+    cfg.thermal = Some(thermal(&cfg, &Axis::ALL[3..], 15.0));
+    let k = close_the_loop(cfg, &["ax", "ay", "az"]);
+    assert!(k.iter().any(|k| k == "thermal"), "{k:?}");
+}
+
+#[test]
+fn one_noisy_sensor() {
+    let mut cfg = config(BASE + 5);
+    cfg.outliers.push(Outlier {
+        group: 9,
+        channel: Channel::AccelZ,
+        noise_factor: 4.0,
+        step: 0.0,
+        step_at_s: 0.0,
+        drift_per_h: 0.0,
+    });
+    let k = close_the_loop(cfg, &["az"]);
+    assert!(k.iter().any(|k| k == "outlier_sensor"), "{k:?}");
+}
+
+#[test]
+fn unequal_parts() {
+    let mut cfg = config(BASE + 6);
+    cfg.spread = PartSpread::unequal_noise(0.7);
+    let k = close_the_loop(cfg, &[]);
+    assert!(k.iter().any(|k| k == "unequal_noise"), "{k:?}");
+}
