@@ -72,6 +72,8 @@ pub struct DemoResult {
     pub diagnosis: Vec<String>,
     /// The axis (`gyro y`, …) with the largest fitted shared-flicker share ρ_flicker, and that share.
     pub largest_shared_flicker: Option<(String, f64)>,
+    /// The sim-to-real loop on the same record: model, twin with and without effects, compared with the record.
+    pub twin: crate::twin::LoopSummary,
 }
 
 const AXIS_NAMES: [&str; 6] = ["gx", "gy", "gz", "ax", "ay", "az"];
@@ -318,11 +320,12 @@ pub fn run(
         3,
     )
     .map_err(anyhow::Error::msg)?;
-    let (diagnosis, largest_shared_flicker) =
-        diagnose_record(&record.finish(), &out.join("diagnose"))?;
+    let (diagnosis, largest_shared_flicker, twin) =
+        diagnose_record(&record.finish(), &out.join("diagnose"), &out.join("twin"))?;
     let result = DemoResult {
         diagnosis,
         largest_shared_flicker,
+        twin,
         table1,
         table2,
         fits,
@@ -339,15 +342,22 @@ pub fn run(
     Ok(result)
 }
 
-/// What the demo keeps of its diagnosis: one line per effect, and the axis with the largest shared-flicker share.
-type Diagnosed = (Vec<String>, Option<(String, f64)>);
+/// What the demo keeps of its diagnosis: one line per effect, the axis with the largest shared-flicker share, the
+/// twin's loop.
+type Diagnosed = (Vec<String>, Option<(String, f64)>, crate::twin::LoopSummary);
 
 /// `ground diagnose` on the demo's record (the simulated samples, physical units): report, plot and JSON in `dir`,
-/// one summary line per effect returned, and the axis with the largest shared-flicker share.
-fn diagnose_record(rec: &crate::formats::Recording, dir: &Path) -> Result<Diagnosed> {
+/// one summary line per effect returned, and the axis with the largest shared-flicker share; then the twin's loop
+/// in `twin_dir` (`twin::close_the_loop`).
+fn diagnose_record(
+    rec: &crate::formats::Recording,
+    dir: &Path,
+    twin_dir: &Path,
+) -> Result<Diagnosed> {
     use crate::diagnose::{Options, diagnose, report};
     let r = diagnose(rec, &Options::default()).map_err(anyhow::Error::msg)?;
     report::write(&r, dir, "the demo's simulated record").map_err(anyhow::Error::msg)?;
+    let twin = crate::twin::close_the_loop(rec, &r, "the demo's record", twin_dir, 2)?;
     std::fs::write(dir.join("diagnose.json"), serde_json::to_string_pretty(&r)?)?;
     let flicker = r
         .effects
@@ -386,7 +396,7 @@ fn diagnose_record(rec: &crate::formats::Recording, dir: &Path) -> Result<Diagno
             )
         })
         .collect();
-    Ok((lines, flicker))
+    Ok((lines, flicker, twin))
 }
 
 fn unit(a: usize) -> (&'static str, f64, &'static str, f64) {
@@ -607,6 +617,26 @@ pub fn report(r: &DemoResult, opts: DemoOptions) -> String {
              **{name}**, {ratio:.2} — the paper's open question, \"correlation between bias stability errors\".\n"
         );
     }
+    let t = &r.twin;
+    let axes = |v: &[String]| {
+        if v.is_empty() {
+            "none".to_string()
+        } else {
+            v.join(", ")
+        }
+    };
+    let _ = writeln!(
+        s,
+        "## The loop closed: the record's twin (`twin/`)\n\nThe diagnosis fitted as a model (`twin/model.toml`, `docs/twin.md`), played \
+         with a new noise seed, and compared with the record per axis and τ (`ground compare`; scan threshold {:.2}):\n\n\
+         | twin | axes not reproduced | largest scan |\n|---|---|---:|\n\
+         | with the effects found | {} | {:.2} |\n| without effects (√N model) | {} | {:.2} |\n",
+        t.threshold,
+        axes(&t.with_effects),
+        t.with_effects_scan,
+        axes(&t.without_effects),
+        t.without_effects_scan
+    );
     let _ = writeln!(s, "## Checks\n");
     let _ = writeln!(
         s,
@@ -615,7 +645,7 @@ pub fn report(r: &DemoResult, opts: DemoOptions) -> String {
     );
     let _ = writeln!(
         s,
-        "- Files: `table1.csv`, `table2.csv`, `seed_fit.csv`, `adev.png`, `demo.json`, `telemetry.kiss` (what the MCU would have sent; `ground decode` reads it), `diagnose/` (report, plot, JSON)."
+        "- Files: `table1.csv`, `table2.csv`, `seed_fit.csv`, `adev.png`, `demo.json`, `telemetry.kiss` (what the MCU would have sent; `ground decode` reads it), `diagnose/` (report, plot, JSON), `twin/` (model, comparisons, plot)."
     );
     s
 }

@@ -331,3 +331,59 @@ impl Comparison {
         s
     }
 }
+
+impl Comparison {
+    /// The overlay plot: one panel per axis, the first recording's cluster and typical sensor against the
+    /// second's, with their 68 % intervals (`.png` or `.svg`).
+    pub fn plot(&self, path: &std::path::Path, title: &str) -> Result<(), String> {
+        use crate::plot::{Curve, Panel, Style, adev_panels};
+        let curve = |v: &CurveVerdict, first: bool, style: Style, label: &str| {
+            let d = |t: &TauGap| if first { t.a } else { t.b };
+            Curve {
+                label: Some(label.into()),
+                points: v.taus.iter().map(|t| (t.tau_s, d(t).dev)).collect(),
+                bars: v.taus.iter().map(|t| (t.tau_s, d(t).lo, d(t).hi)).collect(),
+                style,
+            }
+        };
+        let panels: Vec<Panel> = self
+            .axes
+            .iter()
+            .map(|x| Panel {
+                title: format!(
+                    "{}{}",
+                    x.axis,
+                    if x.significant {
+                        ": NOT reproduced"
+                    } else {
+                        ": reproduced"
+                    }
+                ),
+                y_label: "Allan deviation".into(),
+                curves: vec![
+                    curve(&x.typical, true, Style::Thin(0), "real, typical sensor"),
+                    curve(&x.typical, false, Style::Thin(1), "sim, typical sensor"),
+                    curve(&x.cluster, true, Style::Bold, "real, cluster"),
+                    curve(&x.cluster, false, Style::Model(3), "sim, cluster"),
+                ],
+            })
+            .collect();
+        adev_panels(path, title, &panels, 3)
+    }
+
+    /// The largest scan statistic over the axes, curves and directions, and its threshold.
+    pub fn largest_scan(&self) -> (f64, f64) {
+        let scan = self
+            .axes
+            .iter()
+            .flat_map(|a| a.cluster.scan.iter().chain(&a.typical.scan))
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
+        (
+            scan,
+            self.axes
+                .first()
+                .map_or(f64::INFINITY, |a| a.cluster.threshold),
+        )
+    }
+}

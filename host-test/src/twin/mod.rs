@@ -366,5 +366,76 @@ impl ClusterModel {
     }
 }
 
+/// What [`close_the_loop`] found: the axes each twin does not reproduce, and the largest scan statistic.
+#[derive(Clone, Debug, Serialize)]
+pub struct LoopSummary {
+    /// Effects the diagnosis named.
+    pub effects: Vec<String>,
+    /// Axes the twin with its effects does not reproduce.
+    pub with_effects: Vec<String>,
+    /// Its largest scan statistic.
+    pub with_effects_scan: f64,
+    /// Axes the twin without effects (the √N model) does not reproduce.
+    pub without_effects: Vec<String>,
+    /// Its largest scan statistic.
+    pub without_effects_scan: f64,
+    /// The scan threshold.
+    pub threshold: f64,
+}
+
+/// The sim-to-real loop on a recording already diagnosed: the model fitted and saved (`dir/model.toml`), its twin
+/// played with and without effects (noise seed `seed`), each compared with the recording (`dir/compare-with.json`,
+/// `dir/compare-without.json`, and the plot of the first, `dir/compare.png`). What `ground demo` shows.
+pub fn close_the_loop(
+    rec: &crate::formats::csv::Recording,
+    report: &crate::diagnose::Report,
+    source: &str,
+    dir: &Path,
+    seed: u64,
+) -> Result<LoopSummary, TwinError> {
+    let io = |path: &Path| {
+        let path = path.display().to_string();
+        move |source| TwinError::Io { path, source }
+    };
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let model = fit(rec, report, source)?;
+    model.save(&dir.join("model.toml"))?;
+    let mut out = Vec::new();
+    for (without_effects, name) in [(false, "with"), (true, "without")] {
+        let sim = play(
+            &model,
+            &PlayOptions {
+                seed,
+                without_effects,
+                ..Default::default()
+            },
+        )?;
+        let c = compare(rec, &sim, &CompareOptions::default())?;
+        drop(sim);
+        let path = dir.join(format!("compare-{name}.json"));
+        let json =
+            serde_json::to_string_pretty(&c).map_err(|e| TwinError::Invalid(e.to_string()))?;
+        std::fs::write(&path, json).map_err(io(&path))?;
+        if !without_effects {
+            c.plot(&dir.join("compare.png"), &format!("{source} vs its twin"))
+                .map_err(TwinError::Invalid)?;
+        }
+        out.push(c);
+    }
+    let (with, without) = (&out[0], &out[1]);
+    Ok(LoopSummary {
+        effects: report
+            .effects
+            .iter()
+            .map(|e| format!("{} {} {}", e.kind, e.sensor, e.axes))
+            .collect(),
+        with_effects: with.significant_axes.clone(),
+        with_effects_scan: with.largest_scan().0,
+        without_effects: without.significant_axes.clone(),
+        without_effects_scan: without.largest_scan().0,
+        threshold: with.largest_scan().1,
+    })
+}
+
 #[cfg(test)]
 mod tests;

@@ -3,8 +3,7 @@
 use crate::common::spinner;
 use anyhow::{Context, Result};
 use host_test::load;
-use host_test::plot::{Curve, Panel, Style, adev_panels};
-use host_test::twin::compare::{CurveVerdict, P_FALSE, TOLERANCE};
+use host_test::twin::compare::{P_FALSE, TOLERANCE};
 use shared::wire::clock::FPGA_BASE_RATE_MILLIHZ;
 use std::path::PathBuf;
 
@@ -29,16 +28,6 @@ pub struct Args {
     fitted_elsewhere: bool,
 }
 
-fn curve(v: &CurveVerdict, real: bool, style: Style, label: &str) -> Curve {
-    let d = |t: &host_test::twin::compare::TauGap| if real { t.a } else { t.b };
-    Curve {
-        label: Some(label.into()),
-        points: v.taus.iter().map(|t| (t.tau_s, d(t).dev)).collect(),
-        bars: v.taus.iter().map(|t| (t.tau_s, d(t).lo, d(t).hi)).collect(),
-        style,
-    }
-}
-
 pub fn run(a: Args) -> Result<()> {
     let pb = spinner("reading");
     let real = load::load_with(&a.real, None, FPGA_BASE_RATE_MILLIHZ)?.recording;
@@ -58,31 +47,12 @@ pub fn run(a: Args) -> Result<()> {
     let json = a.out.join("compare.json");
     std::fs::write(&json, serde_json::to_string_pretty(&c)?)
         .with_context(|| format!("writing {}", json.display()))?;
-    let panels: Vec<Panel> = c
-        .axes
-        .iter()
-        .map(|x| Panel {
-            title: format!(
-                "{}{}",
-                x.axis,
-                if x.significant {
-                    ": NOT reproduced"
-                } else {
-                    ": reproduced"
-                }
-            ),
-            y_label: "Allan deviation".into(),
-            curves: vec![
-                curve(&x.typical, true, Style::Thin(0), "real, typical sensor"),
-                curve(&x.typical, false, Style::Thin(1), "sim, typical sensor"),
-                curve(&x.cluster, true, Style::Bold, "real, cluster"),
-                curve(&x.cluster, false, Style::Model(3), "sim, cluster"),
-            ],
-        })
-        .collect();
     let png = a.out.join("compare.png");
-    let title = format!("{} vs {}", a.real.display(), a.sim.display());
-    adev_panels(&png, &title, &panels, 3).map_err(anyhow::Error::msg)?;
+    c.plot(
+        &png,
+        &format!("{} vs {}", a.real.display(), a.sim.display()),
+    )
+    .map_err(anyhow::Error::msg)?;
     print!("{}", c.summary());
     println!("json: {}, plot: {}", json.display(), png.display());
     Ok(())
