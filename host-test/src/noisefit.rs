@@ -45,7 +45,9 @@ fn basis(tau: f64) -> [f64; 4] {
 }
 
 /// Solves the weighted least squares on the terms in `mask`; `None` if singular.
-fn solve<const K: usize>(rows: &[([f64; K], f64, f64)], mask: u32) -> Option<[f64; K]> {
+/// Weighted least squares on the basis functions whose bit is set in `mask` (the others get 0): rows are (basis
+/// values, observation, weight); `None` if the normal equations are singular.
+pub fn solve<const K: usize>(rows: &[([f64; K], f64, f64)], mask: u32) -> Option<[f64; K]> {
     let idx: Vec<usize> = (0..K).filter(|i| mask & (1 << i) != 0).collect();
     let k = idx.len();
     let mut a = vec![vec![0.0; k + 1]; k];

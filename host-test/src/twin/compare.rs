@@ -148,11 +148,8 @@ fn curves(
     if cols.len() < 2 {
         return None;
     }
-    let n = cols.iter().map(|c| c.len()).min()?;
-    let ns = cols.len();
-    let mean: Vec<f64> = (0..n)
-        .map(|i| cols.iter().map(|c| c[i]).sum::<f64>() / ns as f64)
-        .collect();
+    let (mean, ns) = crate::adev::cluster_mean(rec, kind, axis)?;
+    let n = mean.len();
     // A τ with at least `MIN_BLOCKS` averaging blocks and a known EDF (scaled by `edf_scale`), its χ² interval.
     let dev = |p: &AnalysisPoint, dev: f64, edf_scale: f64| -> Option<(f64, Dev)> {
         let edf = p.edf? * edf_scale;

@@ -291,33 +291,6 @@ pub fn fit_terms(points: &[AnalysisPoint]) -> NoiseTerms {
         .unwrap_or_default()
 }
 
-/// Least squares of `y` on the columns `cols` (normal equations; `None` if singular).
-fn lstsq(cols: &[Vec<f64>], y: &[f64]) -> Option<Vec<f64>> {
-    let k = cols.len();
-    let mut a = vec![vec![0.0; k + 1]; k];
-    for r in 0..k {
-        for c in 0..k {
-            a[r][c] = cols[r].iter().zip(&cols[c]).map(|(x, z)| x * z).sum();
-        }
-        a[r][k] = cols[r].iter().zip(y).map(|(x, z)| x * z).sum();
-    }
-    for col in 0..k {
-        let piv = (col..k).max_by(|&x, &z| a[x][col].abs().total_cmp(&a[z][col].abs()))?;
-        if a[piv][col].abs() < 1e-300 {
-            return None;
-        }
-        a.swap(col, piv);
-        let p = a[col].clone();
-        for (r, row) in a.iter_mut().enumerate() {
-            if r != col {
-                let f = row[col] / p[col];
-                row.iter_mut().zip(&p).for_each(|(x, q)| *x -= f * q);
-            }
-        }
-    }
-    Some((0..k).map(|r| a[r][k] / a[r][r]).collect())
-}
-
 fn sum_sq(v: &[f64]) -> f64 {
     v.iter().map(|x| x * x).sum()
 }
@@ -332,16 +305,32 @@ pub fn fit_temperature(t_s: &[f64], temp: &[f64], tau0: f64) -> TemperatureModel
     let t0 = t.first().copied().unwrap_or(0.0);
     let tt: Vec<f64> = t.iter().map(|x| x - t0).collect();
     let duration = tt.last().copied().unwrap_or(0.0).max(tau0);
-    let mut cols = vec![vec![1.0; n], tt.clone()];
+    // Columns: 1, t, then sin and cos of each harmonic found (at most 2 + 2·HARMONICS_MAX = 6).
     let mut periods: Vec<f64> = Vec::new();
-    let residual = |cols: &[Vec<f64>]| -> (Vec<f64>, Vec<f64>) {
-        let c = lstsq(cols, y).unwrap_or_else(|| vec![0.0; cols.len()]);
-        let r = (0..n)
-            .map(|i| y[i] - cols.iter().zip(&c).map(|(col, k)| col[i] * k).sum::<f64>())
+    let row = |t: f64, periods: &[f64]| -> [f64; 6] {
+        let mut r = [1.0, t, 0.0, 0.0, 0.0, 0.0];
+        for (k, p) in periods.iter().enumerate() {
+            let (s, c) = (std::f64::consts::TAU * t / p).sin_cos();
+            r[2 + 2 * k] = s;
+            r[3 + 2 * k] = c;
+        }
+        r
+    };
+    let residual = |periods: &[f64]| -> ([f64; 6], Vec<f64>) {
+        let rows: Vec<([f64; 6], f64, f64)> = tt
+            .iter()
+            .zip(y)
+            .map(|(&t, &v)| (row(t, periods), v, 1.0))
+            .collect();
+        let mask = (1u32 << (2 + 2 * periods.len())) - 1;
+        let c = crate::noisefit::solve(&rows, mask).unwrap_or([0.0; 6]);
+        let r = rows
+            .iter()
+            .map(|(b, v, _)| v - b.iter().zip(&c).map(|(x, k)| x * k).sum::<f64>())
             .collect();
         (c, r)
     };
-    let (_, mut r) = residual(&cols);
+    let (_, mut r) = residual(&periods);
     let (p_lo, p_hi) = ((20.0 * tau0).max(1e-9), duration);
     for _ in 0..HARMONICS_MAX {
         if p_hi <= p_lo || sum_sq(&r) == 0.0 {
@@ -368,13 +357,10 @@ pub fn fit_temperature(t_s: &[f64], temp: &[f64], tau0: f64) -> TemperatureModel
         if sinusoid_gain(&tt, &r, p) < HARMONIC_MIN_SHARE * sum_sq(&r) {
             break;
         }
-        let w = std::f64::consts::TAU / p;
-        cols.push(tt.iter().map(|x| (w * x).sin()).collect());
-        cols.push(tt.iter().map(|x| (w * x).cos()).collect());
         periods.push(p);
-        r = residual(&cols).1;
+        r = residual(&periods).1;
     }
-    let (c, r) = residual(&cols);
+    let (c, r) = residual(&periods);
     let harmonics = periods
         .iter()
         .enumerate()

@@ -231,13 +231,7 @@ fn play_gives_the_modelled_allan_variance_and_the_shared_correlation() {
         .find(|c| c.kind == SensorKind::Accel && c.axis == 2)
         .unwrap();
     let t = rec.temp_c.as_ref().unwrap();
-    let (mt, ma) = (crate::stats::mean(t), crate::stats::mean(&az.data));
-    let beta = t
-        .iter()
-        .zip(&az.data)
-        .map(|(t, a)| (t - mt) * (a - ma))
-        .sum::<f64>()
-        / t.iter().map(|t| (t - mt).powi(2)).sum::<f64>();
+    let beta = slope(t, &az.data);
     assert!((beta / 2e-4 - 1.0).abs() < 0.05, "β {beta}");
     // Without effects: no temperature in the sensors, the typical terms everywhere.
     let plain = play(
@@ -254,14 +248,18 @@ fn play_gives_the_modelled_allan_variance_and_the_shared_correlation() {
         .iter()
         .find(|c| c.kind == SensorKind::Accel && c.axis == 2)
         .unwrap();
-    let ma = crate::stats::mean(&az.data);
-    let beta = t
-        .iter()
-        .zip(&az.data)
-        .map(|(t, a)| (t - mt) * (a - ma))
-        .sum::<f64>()
-        / t.iter().map(|t| (t - mt).powi(2)).sum::<f64>();
+    let beta = slope(t, &az.data);
     assert!(beta.abs() < 2e-5, "β without effects {beta}");
+}
+
+/// The regression coefficient of `x` on `t`.
+fn slope(t: &[f64], x: &[f64]) -> f64 {
+    let (mt, mx) = (crate::stats::mean(t), crate::stats::mean(x));
+    t.iter()
+        .zip(x)
+        .map(|(t, x)| (t - mt) * (x - mx))
+        .sum::<f64>()
+        / t.iter().map(|t| (t - mt).powi(2)).sum::<f64>()
 }
 
 /// Two records of one model (different seeds) are not told apart; a record with twice the white noise on one axis
