@@ -3,8 +3,8 @@
 //! loops on the PC with the hardware replaced at the edges ([`sim`]): the SITL binary and the scenario tests.
 //!
 //! - [`app`]: the tasks' loops and the state they share ([`app::App`]).
-//! - [`flash`]: a `NorFlash` window onto the calibration sectors.
-//! - [`layout`]: the STM32F405 facts the loops and the models both need (flash sectors, line rates).
+//! - [`layout`]: the STM32F405 facts the loops and the models both need (flash sectors, line rates, ring sizes,
+//!   the longest store stall, the stack the flight build leaves).
 //! - [`mcu_sensors`]: the MCU's temperature and VDDA from its ADC codes and factory calibration.
 //! - [`sim`] (host): the clock and executor (virtual or real time), UART lines, the flash model.
 #![no_std]

@@ -1,8 +1,9 @@
-//! Wire formats: the FPGA link frame and its streaming decoder, and the CubeSat bus framing (CSP v1 in KISS).
+//! The FPGA link's wire formats: its frame and streaming decoder, the frame clock, and the control messages to the
+//! FPGA. (The CubeSat bus framing, CSP in KISS, is `crate::bus`.)
 //!
-//! Each format follows one shape: a zero-copy view over bytes (`Frame<T>`, `CspHeader`) whose `new_checked`
+//! Each format follows one shape: a zero-copy view over bytes (`Frame<T>`) whose `new_checked`
 //! guarantees that no accessor can fail afterwards, and a parsed representation (`…Repr`) with `parse` and `emit`
-//! that mirror each other. Specifications: `docs/fpga-link.md`, `docs/bus.md`.
+//! that mirror each other. Specification: `docs/fpga-link.md`.
 
 pub mod clock;
 pub mod control;
