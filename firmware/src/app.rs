@@ -109,55 +109,73 @@ pub enum Task {
     BusTx = 2,
 }
 
-/// Counters of the shell (the pipeline counts everything else); wrapping.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct ShellCounters {
-    /// FPGA receive errors: framing, noise or parity.
-    pub link_line_errors: u32,
-    /// FPGA receive errors of any other kind (overruns go to the pipeline's link counters).
-    pub link_other_errors: u32,
-    /// Bus receive errors: overrun (UART or DMA ring).
-    pub bus_rx_overruns: u32,
-    /// Bus receive errors: framing, noise or parity.
-    pub bus_rx_line_errors: u32,
-    /// Bus receive errors of any other kind.
-    pub bus_rx_other_errors: u32,
-    /// Bus transmit errors.
-    pub bus_tx_errors: u32,
-    /// FPGA control messages dropped (queue full).
-    pub fpga_ctrl_dropped: u32,
-    /// Calibration records stored.
-    pub cal_stores: u32,
-    /// Calibration stores that failed.
-    pub cal_store_errors: u32,
-    /// Health reports sent because the link was silent.
-    pub silent_health: u32,
-    /// Housekeeping reports sent.
-    pub housekeeping: u32,
-    /// Times the calibration in RAM failed its CRC check and was reloaded from flash.
-    pub cal_ram_repairs: u32,
-    /// Times the core clock stayed full after a stop because FPGA bytes kept arriving.
-    pub clock_kept: u32,
+/// Declares the shell's counters once: the public snapshot [`ShellCounters`] (one field each), the private
+/// `Counter` that names them, and the `AtomicCounters` the tasks increment.
+macro_rules! shell_counters {
+    ($($(#[$doc:meta])* $field:ident: $variant:ident,)*) => {
+        /// Counters of the shell (the pipeline counts everything else); wrapping.
+        #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+        pub struct ShellCounters {
+            $($(#[$doc])* pub $field: u32,)*
+        }
+
+        #[derive(Clone, Copy)]
+        enum Counter {
+            $($variant,)*
+        }
+
+        impl Counter {
+            const COUNT: usize = [$(Counter::$variant),*].len();
+        }
+
+        struct AtomicCounters([AtomicU32; Counter::COUNT]);
+
+        impl AtomicCounters {
+            const fn new() -> Self {
+                Self([const { AtomicU32::new(0) }; Counter::COUNT])
+            }
+
+            fn get(&self, c: Counter) -> u32 {
+                self.0.get(c as usize).map_or(0, |a| a.load(Ordering::Relaxed))
+            }
+
+            fn snapshot(&self) -> ShellCounters {
+                ShellCounters {
+                    $($field: self.get(Counter::$variant),)*
+                }
+            }
+        }
+    };
 }
 
-struct AtomicCounters([AtomicU32; 13]);
-
-#[derive(Clone, Copy)]
-enum Counter {
-    LinkLine = 0,
-    LinkOther,
-    BusRxOverrun,
-    BusRxLine,
-    BusRxOther,
-    BusTx,
-    FpgaDropped,
-    CalStores,
-    CalStoreErrors,
-    SilentHealth,
-    Housekeeping,
-    CalRamRepairs,
-    ClockKept,
+shell_counters! {
+    /// FPGA receive errors: framing, noise or parity.
+    link_line_errors: LinkLine,
+    /// FPGA receive errors of any other kind (overruns go to the pipeline's link counters).
+    link_other_errors: LinkOther,
+    /// Bus receive errors: overrun (UART or DMA ring).
+    bus_rx_overruns: BusRxOverrun,
+    /// Bus receive errors: framing, noise or parity.
+    bus_rx_line_errors: BusRxLine,
+    /// Bus receive errors of any other kind.
+    bus_rx_other_errors: BusRxOther,
+    /// Bus transmit errors.
+    bus_tx_errors: BusTx,
+    /// FPGA control messages dropped (queue full).
+    fpga_ctrl_dropped: FpgaDropped,
+    /// Calibration records stored.
+    cal_stores: CalStores,
+    /// Calibration stores that failed.
+    cal_store_errors: CalStoreErrors,
+    /// Health reports sent because the link was silent.
+    silent_health: SilentHealth,
+    /// Housekeeping reports sent.
+    housekeeping: Housekeeping,
+    /// Times the calibration in RAM failed its CRC check and was reloaded from flash.
+    cal_ram_repairs: CalRamRepairs,
+    /// Times the core clock stayed full after a stop because FPGA bytes kept arriving.
+    clock_kept: ClockKept,
 }
 
 /// What the board knows at boot, reported in every [`HousekeepingReport`].
@@ -265,7 +283,7 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
             persist: Signal::new(),
             reload: Signal::new(),
             progress: [const { AtomicU32::new(0) }; 3],
-            counters: AtomicCounters([const { AtomicU32::new(0) }; 13]),
+            counters: AtomicCounters::new(),
             bus_counters: BlockingMutex::new(Cell::new(BusCounters::ZERO)),
             last_store: BlockingMutex::new(Cell::new(StoreOutcome::None)),
             platform,
@@ -295,27 +313,7 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
 
     /// The shell's counters now.
     pub fn counters(&self) -> ShellCounters {
-        let c = |i: Counter| {
-            self.counters
-                .0
-                .get(i as usize)
-                .map_or(0, |a| a.load(Ordering::Relaxed))
-        };
-        ShellCounters {
-            link_line_errors: c(Counter::LinkLine),
-            link_other_errors: c(Counter::LinkOther),
-            bus_rx_overruns: c(Counter::BusRxOverrun),
-            bus_rx_line_errors: c(Counter::BusRxLine),
-            bus_rx_other_errors: c(Counter::BusRxOther),
-            bus_tx_errors: c(Counter::BusTx),
-            fpga_ctrl_dropped: c(Counter::FpgaDropped),
-            cal_stores: c(Counter::CalStores),
-            cal_store_errors: c(Counter::CalStoreErrors),
-            silent_health: c(Counter::SilentHealth),
-            housekeeping: c(Counter::Housekeeping),
-            cal_ram_repairs: c(Counter::CalRamRepairs),
-            clock_kept: c(Counter::ClockKept),
-        }
+        self.counters.snapshot()
     }
 
     /// The housekeeping report at `now` (the pipeline's time gaps and link overruns from `p`; the core's load over
