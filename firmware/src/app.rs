@@ -60,6 +60,10 @@ pub const CAL_SCRATCH: usize = encoded_len_max(GROUPS) + 16;
 pub const TELEMETRY_QUEUE: usize = 10;
 /// Acks and ping replies queued for the bus.
 pub const REPLY_QUEUE: usize = 4;
+/// How often the watchdog task checks progress (and feeds the IWDG if every task made some).
+pub const WATCHDOG_PERIOD: Duration = Duration::from_millis(250);
+/// Housekeeping periods between log lines of link statistics.
+pub const LOG_EVERY: u32 = 10;
 /// Housekeeping period: a [`HousekeepingReport`] each time, a Health report too while the FPGA link is silent, and
 /// the CRC check of the calibration in RAM.
 pub const HOUSEKEEPING_PERIOD: Duration = Duration::from_secs(1);

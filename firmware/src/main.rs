@@ -10,7 +10,6 @@ mod board;
 mod fault;
 
 use embassy_executor::Spawner;
-use embassy_time::Duration;
 use firmware::app::{self, App};
 use shared::bus::BusConfig;
 use shared::pipeline::PipelineConfig;
@@ -39,11 +38,6 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     }
     cortex_m::peripheral::SCB::sys_reset()
 }
-
-/// How often the watchdog task checks progress.
-const WATCHDOG_PERIOD: Duration = Duration::from_millis(250);
-/// Housekeeping periods (1 s each) between log lines of link statistics.
-const LOG_EVERY: u32 = 10;
 
 /// The whole state of the tasks (14 KiB), built at compile time (`.data`): never on the stack.
 #[allow(unsafe_code)] // `AllanCcm::new`
@@ -124,12 +118,12 @@ async fn storage(app: &'static FwApp, store: &'static mut CalStore<board::CalibF
 
 #[embassy_executor::task]
 async fn watchdog(app: &'static FwApp, mut wdt: board::Watchdog, mut led: board::Led) {
-    app::watchdog_loop(app, WATCHDOG_PERIOD, || wdt.pet(), &mut led).await
+    app::watchdog_loop(app, app::WATCHDOG_PERIOD, || wdt.pet(), &mut led).await
 }
 
 #[embassy_executor::task]
 async fn housekeeping(app: &'static FwApp) {
-    app::housekeeping_loop(app, LOG_EVERY).await
+    app::housekeeping_loop(app, app::LOG_EVERY).await
 }
 
 #[embassy_executor::task]

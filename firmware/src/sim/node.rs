@@ -20,9 +20,6 @@ use crate::app::{self, App};
 use crate::layout::{BUS_BAUD, BUS_RX_RING_LEN, FPGA_RX_RING_LEN};
 use crate::log::Loggable;
 
-/// How often the watchdog loop checks progress (as `main.rs`).
-pub const WATCHDOG_PERIOD: Duration = Duration::from_millis(250);
-
 /// The FPGA sending `log` frame by frame at decimation N (a frame every N + 1 ticks of its base clock at
 /// `base_rate_millihz`), frame k at the frame clock's time of its k·(N + 1)-th tick from now (the time the pipeline
 /// gives it, to the µs, without a rounded period's drift), whether or not the firmware runs: after a CPU stall
@@ -158,9 +155,9 @@ where
         join3(
             join(
                 app::storage_loop(app, store),
-                app::watchdog_loop(app, WATCHDOG_PERIOD, feed, &mut led),
+                app::watchdog_loop(app, app::WATCHDOG_PERIOD, feed, &mut led),
             ),
-            app::housekeeping_loop(app, 10),
+            app::housekeeping_loop(app, app::LOG_EVERY),
             app::pps_loop(app, &mut pps),
         ),
     )
