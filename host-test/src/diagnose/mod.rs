@@ -28,6 +28,7 @@ mod candidates;
 pub mod model;
 mod prediction;
 pub use prediction::{scan_statistic, scan_threshold};
+pub(crate) use singles::median_to_mean;
 pub mod report;
 mod selection;
 mod singles;

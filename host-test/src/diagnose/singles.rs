@@ -62,7 +62,7 @@ pub(super) fn edf(alpha: i32, m: usize, n: usize) -> f64 {
 }
 
 /// `E[χ²_ν/ν] / median(χ²_ν/ν)`: corrects a median of variance estimates with `nu` EDF to their mean.
-pub(super) fn median_to_mean(nu: f64) -> f64 {
+pub(crate) fn median_to_mean(nu: f64) -> f64 {
     ChiSquared::new(nu)
         .map(|c| nu / c.inverse_cdf(0.5))
         .ok()

@@ -13,7 +13,10 @@
 //! tests at `p_false / 4`: an axis is reproduced unless one exceeds its threshold.
 
 use super::*;
-use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, TauSpec};
+use crate::allan::{
+    AnalysisPoint, Analyzer, DevKind, ONE_SIGMA_CI, Options as AllanOptions, TauSpec,
+    confidence_interval,
+};
 use crate::diagnose::{scan_statistic, scan_threshold};
 use crate::formats::csv::Recording;
 use crate::stats::median;
@@ -154,7 +157,7 @@ fn curves(
     let dev = |p: &AnalysisPoint, dev: f64, edf_scale: f64| -> Option<(f64, Dev)> {
         let edf = p.edf? * edf_scale;
         (n / p.m.max(1) >= MIN_BLOCKS && dev > 0.0).then(|| {
-            let (lo, hi) = interval(dev, edf);
+            let (lo, hi) = confidence_interval(dev, edf, ONE_SIGMA_CI).unwrap_or((dev, dev));
             (p.tau_s, Dev { dev, lo, hi, edf })
         })
     };
@@ -172,18 +175,6 @@ fn curves(
         })
         .collect();
     Some(((cluster, typical), ns))
-}
-
-/// The 68 % interval of a deviation with `edf` degrees of freedom (χ² quantiles).
-fn interval(dev: f64, edf: f64) -> (f64, f64) {
-    use statrs::distribution::{ChiSquared, ContinuousCDF};
-    match ChiSquared::new(edf) {
-        Ok(c) => (
-            dev * (edf / c.inverse_cdf(0.841_344_746)).sqrt(),
-            dev * (edf / c.inverse_cdf(0.158_655_254)).sqrt(),
-        ),
-        Err(_) => (dev, dev),
-    }
 }
 
 fn verdict(a: &[(f64, Dev)], b: &[(f64, Dev)], o: &CompareOptions) -> CurveVerdict {

@@ -15,11 +15,11 @@
 
 use super::*;
 use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, TauSpec};
+use crate::diagnose::median_to_mean;
 use crate::diagnose::model::{Cross, Terms};
 use crate::diagnose::{AxisFit, Report};
 use crate::formats::csv::Recording;
 use crate::stats::median;
-use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 /// Harmonics that explain less than this share of what remains are not kept.
 const HARMONIC_MIN_SHARE: f64 = 0.05;
@@ -264,14 +264,6 @@ fn typical_points(points: &[Vec<AnalysisPoint>]) -> Vec<AnalysisPoint> {
             }
         })
         .collect()
-}
-
-fn median_to_mean(nu: f64) -> f64 {
-    ChiSquared::new(nu)
-        .map(|c| nu / c.inverse_cdf(0.5))
-        .ok()
-        .filter(|x| x.is_finite() && *x > 0.0)
-        .unwrap_or(1.0)
 }
 
 /// The five terms fitted (non-negative least squares on the Allan variance, each point weighted by its EDF over
