@@ -193,22 +193,22 @@ pub fn start_watchdog() -> Watchdog {
 
 /// The Allan accumulators of all 102 channels (57.9 KB): in the 64 KiB core-coupled RAM, which only the CPU
 /// reaches (the bank is never a DMA buffer) and which nothing else uses, so that SRAM keeps its room for the stack.
-/// `.ccmram` is NOLOAD (`memory.x`): cortex-m-rt neither zeroes nor initialises it; [`init_allan_ccm`] does.
+/// `.ccmram` is NOLOAD (`memory.x`): cortex-m-rt neither zeroes nor initialises it; [`AllanCcm`] zeroes it in place
+/// before its first borrow.
 #[allow(unsafe_code)] // the link section, and the accesses in `AllanCcm` (SAFETY notes there)
 #[unsafe(link_section = ".ccmram.ALLAN")]
 static mut ALLAN: core::mem::MaybeUninit<AllanBank> = core::mem::MaybeUninit::uninit();
 static ALLAN_READY: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 
-/// Zeroes the Allan bank in CCM RAM, in place, once (later calls do nothing). `main` calls it before it takes the
-/// `App` that holds the only [`AllanCcm`].
-pub fn init_allan_ccm() {
+/// Zeroes the Allan bank in CCM RAM, in place, once (later calls do nothing).
+fn init_allan_ccm() {
     use core::sync::atomic::Ordering;
     if ALLAN_READY.load(Ordering::Acquire) {
         return;
     }
     #[allow(unsafe_code)]
-    // SAFETY: no reference to ALLAN exists yet: the only handle (`AllanCcm`) borrows it only after ALLAN_READY is
-    // set below, and this runs in `main` before any task or interrupt. Every bit pattern of the bank's fields is
+    // SAFETY: no reference to ALLAN exists yet: the only handle (`AllanCcm`) calls this before its first borrow and
+    // borrows only once ALLAN_READY is set below. Every bit pattern of the bank's fields is
     // valid (it holds only integers: `AllanSet` is counts, sums and previous values), and all-zero is its empty
     // state (`AllanBank::new()`).
     unsafe {
@@ -227,16 +227,16 @@ impl AllanCcm {
     /// The handle.
     ///
     /// # Safety
-    /// At most one may exist: it hands out `&mut` to the one bank. (It initialises the bank itself if `main` did
-    /// not, before its first borrow.)
+    /// At most one may exist: it hands out `&mut` to the one bank. (It zeroes the bank itself before its first
+    /// borrow.)
     #[allow(unsafe_code)]
     pub const unsafe fn new() -> Self {
         Self(())
     }
 
     fn bank(&self) -> *mut AllanBank {
-        // Never a borrow of uninitialised memory, even if `main` forgot the init (one load per Allan access, once
-        // per frame).
+        // Never a borrow of uninitialised memory: the first access zeroes the bank (at boot, the calibration load's
+        // reset of the statistics); after it, one load per Allan access (once per frame).
         if !ALLAN_READY.load(core::sync::atomic::Ordering::Acquire) {
             init_allan_ccm();
         }

@@ -43,7 +43,7 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 #[allow(unsafe_code)] // `AllanCcm::new`
 static APP: ConstStaticCell<FwApp> = ConstStaticCell::new(App::new(
     PipelineConfig::DEFAULT,
-    // SAFETY: the only handle; `main` initialises the bank before it takes `APP`.
+    // SAFETY: the only handle (it zeroes the bank before its first borrow).
     unsafe { board::AllanCcm::new() },
     BusConfig::DEFAULT,
     app::Platform::NONE,
@@ -66,9 +66,8 @@ async fn main(spawner: Spawner) {
         boot.fault
     );
 
-    // The state was built at compile time (`APP`) and the Allan bank is zeroed in place in CCM RAM: no large frame
-    // on the stack (`docs/firmware.md`, stack; the CI's stack check and boot test hold it to that).
-    board::init_allan_ccm();
+    // The state was built at compile time (`APP`); the Allan bank is zeroed in place in CCM RAM on its first use: no
+    // large frame on the stack (`docs/firmware.md`, stack; the CI's stack check and boot test hold it to that).
     let app = APP.take();
     app.set_platform(app::Platform {
         boot,
