@@ -649,7 +649,8 @@ pub fn load_calibration<F: NorFlash, B: core::borrow::BorrowMut<AllanBank>>(
     F::Error: Loggable,
 {
     let mut scratch = [0u8; CAL_SCRATCH];
-    match store.load::<GROUPS>(&mut scratch) {
+    // In place, into the pipeline's own table: a table-sized temporary broke the 8 KiB frame limit.
+    pipeline.load_calibration_with(|table| match store.load_into(&mut scratch, table) {
         Ok(loaded) => {
             let source = match loaded.seq {
                 Some(_) => CalSource::Stored,
@@ -657,12 +658,16 @@ pub fn load_calibration<F: NorFlash, B: core::borrow::BorrowMut<AllanBank>>(
             };
             info!(
                 "calibration: id {:?} from {:?} (seq {:?}, slots {:?})",
-                loaded.table.cal_id, source, loaded.seq, loaded.slots
+                table.cal_id, source, loaded.seq, loaded.slots
             );
-            pipeline.load_calibration(&loaded.table, source);
+            source
         }
-        Err(e) => error!("calibration: flash read failed ({:?}), factory default", e),
-    }
+        Err(e) => {
+            error!("calibration: flash read failed ({:?}), factory default", e);
+            table.set_factory();
+            CalSource::Factory
+        }
+    });
 }
 
 /// Persists the calibration in force whenever an upload is committed, then sends the commit's ack: `Ok` only once

@@ -4,7 +4,7 @@
 /// Calibration slots: sectors 1 (A) and 2 (B), at 0x0800_4000 (RM0090 §3.3, table 5); `memory.x` starts the code
 /// at sector 3 (`_stext`), so nothing is linked there.
 pub const CAL_FLASH_BASE: u32 = 0x0800_4000;
-/// Size of one calibration sector, bytes (the F405's sectors 0–3 are 16 KiB: a record of ≤ 2.3 KiB fits, and an
+/// Size of one calibration sector, bytes (the F405's sectors 0–3 are 16 KiB: a record of ≤ 3.8 KiB fits, and an
 /// erase stalls the CPU ≤ 0.5 s at x32 instead of ≤ 4 s for a 128 KiB sector at x8; `docs/storage.md`).
 pub const CAL_SECTOR_LEN: usize = 16 * 1024;
 /// Calibration sectors (one per slot).
@@ -37,14 +37,14 @@ pub const BUS_RX_RING_LEN: usize = 16 * 1024;
 const RECORD_LEN_MAX: u64 = crate::app::CAL_SCRATCH as u64;
 
 /// Slot reads and decodes of one store, µs, bounded: `CalStore::store` reads both slots before the erase and the
-/// new record after it (three reads of ≤ 2.3 KB with a CRC-32C and a table decode, ≈ 0.1 ms each at 168 MHz;
+/// new record after it (three reads of ≤ 3.8 KB with a CRC-32C and a table decode, ≈ 0.1 ms each at 168 MHz;
 /// allowed 2 ms).
 const STORE_READS_MAX_US: u64 = 2_000;
 
 /// Longest a calibration store keeps every task from running, µs: `CalStore::store` is synchronous (the storage
 /// task calls it with the pipeline locked; the CPU stalls on the erase and on each word program, and runs the
 /// reads), so nothing else runs from its start to its end: the sector erase, every word program of the largest
-/// record and the reads, at their maxima (0.5 s + 570 × 100 µs + 2 ms = 0.559 s; `tests` keeps the figures of
+/// record and the reads, at their maxima (0.5 s + 971 × 100 µs + 2 ms = 0.599 s; `tests` keeps the figures of
 /// this comment and `docs/storage.md` in step with the constants).
 pub const STORE_STALL_MAX_US: u64 = (ERASE_SECTOR_US[1] as u64)
     + RECORD_LEN_MAX.div_ceil(FLASH_WRITE_LEN as u64) * (PROGRAM_WORD_US[1] as u64)
@@ -76,12 +76,12 @@ mod tests {
     fn documented_store_figures() {
         assert_eq!(
             RECORD_LEN_MAX.div_ceil(FLASH_WRITE_LEN as u64),
-            570,
+            971,
             "word programs"
         );
-        assert_eq!(STORE_STALL_MAX_US, 559_000);
-        assert_eq!(store_frames_lost_max(604_800), 376);
-        // The bus ring: 16 KiB = 1.42 s at 115200 baud, ≥ 2 × 0.559 s.
+        assert_eq!(STORE_STALL_MAX_US, 599_100);
+        assert_eq!(store_frames_lost_max(604_800), 400);
+        // The bus ring: 16 KiB = 1.42 s at 115200 baud, ≥ 2 × 0.599 s.
         assert_eq!(
             (BUS_RX_RING_LEN as u64) * 10 * 1000 / (BUS_BAUD as u64),
             1422

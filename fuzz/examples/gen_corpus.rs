@@ -74,6 +74,8 @@ fn main() {
         allan_samples: 4096,
         telemetry_dropped: 0,
         commands: [3, 1],
+        temp: Default::default(),
+        thermal_at_cdeg: Some(2_150),
     });
     let faults = Telemetry::Faults(FaultReport {
         group: 3,

@@ -21,9 +21,12 @@
 //! While a fused axis has no valid sensor, its Allan channel repeats the last valid value (`invalid_frames`).
 
 use crate::allan::{AllanSet, LEVELS};
+use crate::calib::thermal::ThermalComp;
 use crate::calib::{AXES, CalibrationTable, RawCounts, encoded_len_max};
 use crate::crc::crc32c;
-use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, HealthMask, div_round};
+use crate::fuse::{
+    FaultCounts, FusedSample, Fusion, FusionConfig, FusionMode, HealthMask, div_round,
+};
 use crate::nav::NavIntegrator;
 use crate::telemetry::{
     Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, FusedReport,
@@ -290,6 +293,8 @@ pub struct Pipeline<B> {
     decoder: FrameDecoder,
     cal: CalibrationTable<GROUPS>,
     cal_source: CalSource,
+    /// The raw-channel biases in force at the frames' temperature.
+    thermal: ThermalComp<GROUPS>,
     fusion: Fusion<GROUPS>,
     allan: B,
     fused_hold: [i32; AXES],
@@ -345,6 +350,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             decoder: FrameDecoder::new(),
             cal: CalibrationTable::factory(),
             cal_source: CalSource::Factory,
+            thermal: ThermalComp::new(),
             fusion: Fusion::new(config.fusion),
             allan: bank,
             fused_hold: [0; AXES],
@@ -402,9 +408,37 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// Puts a calibration in force (restarting the statistics that depend on it). Everything is reset in place and
     /// the table copied from `table`: no second pipeline state is built on the stack (`docs/firmware.md`, stack).
     pub fn load_calibration(&mut self, table: &CalibrationTable<GROUPS>, source: CalSource) {
-        self.cal_check = CalCheck::Loaded(table_crc(table));
         self.cal.clone_from(table);
+        self.calibration_changed(source);
+    }
+
+    /// Puts in force the table that `fill` writes into the pipeline's own, in place (the MCU loads it from flash so,
+    /// without a table-sized temporary): `fill` returns where the table came from.
+    pub fn load_calibration_with(
+        &mut self,
+        fill: impl FnOnce(&mut CalibrationTable<GROUPS>) -> CalSource,
+    ) {
+        let source = fill(&mut self.cal);
+        self.calibration_changed(source);
+    }
+
+    /// The table in `self.cal` was replaced: its checksum, thermal biases and weights, and a restart of the
+    /// statistics that depend on it.
+    fn calibration_changed(&mut self, source: CalSource) {
+        let table = &self.cal;
+        self.cal_check = CalCheck::Loaded(table_crc(table));
         self.cal_source = source;
+        self.thermal.load(table);
+        // A table with fixed weights puts them in force; one without ends their use.
+        let mode = match (table.has_weights(), self.fusion.config().mode) {
+            (true, _) => FusionMode::Fixed,
+            (false, FusionMode::Fixed) => FusionConfig::DEFAULT.mode,
+            (false, mode) => mode,
+        };
+        self.fusion.set_config(FusionConfig {
+            mode,
+            ..*self.fusion.config()
+        });
         self.fusion.reset();
         self.restart_statistics();
     }
@@ -504,6 +538,11 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// The fused sample of the last frame processed.
     pub fn last_fused(&self) -> &FusedSample {
         &self.last
+    }
+
+    /// The thermal compensation's state (biases in force, temperature counts).
+    pub fn thermal(&self) -> &ThermalComp<GROUPS> {
+        &self.thermal
     }
 
     /// The fusion state (noise estimates, weights, fault counts).
@@ -642,6 +681,8 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             allan_samples: self.allan.borrow().0.samples(),
             telemetry_dropped: self.telemetry_dropped,
             commands: self.commands,
+            temp: self.thermal.counts(),
+            thermal_at_cdeg: self.thermal.applied_cdeg(),
         }
     }
 
@@ -717,9 +758,14 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         // Loops into initialised arrays, not `array::map`: on the M4 (opt-level "s") the map's staging copies cost
         // 3.0 k instructions per frame, the loop 0.8 k (`mcu-bench`); at opt-level 2 `from_fn` and `each_ref().map`
         // still cost 0.4–0.7 k more than the loops.
+        self.thermal.update(&self.cal, head.temp_cdeg);
         let FrameScratch { raw, axes } = &mut self.scratch;
-        for ((out, r), cal) in axes.iter_mut().zip(raw.iter()).zip(&self.cal.groups) {
-            *out = cal.apply(r);
+        for ((out, r), (cal, bias)) in axes
+            .iter_mut()
+            .zip(raw.iter())
+            .zip(self.cal.groups.iter().zip(self.thermal.biases()))
+        {
+            *out = cal.apply_with(bias, r);
         }
         // Fused straight into `last` (read below, and by `last_fused`).
         self.fusion.fuse_into(raw, axes, &self.cal, &mut self.last);
@@ -939,6 +985,9 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 });
             }
             Command::SetFusion { mode, robust } => {
+                if mode == FusionMode::Fixed && !self.cal.has_weights() {
+                    return Err(Reject::BadArgument);
+                }
                 self.fusion.set_config(FusionConfig {
                     mode,
                     robust,
@@ -987,9 +1036,10 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 if u.received != u.len || crc32c(bytes) != u.crc {
                     return Err(Reject::CalIncomplete);
                 }
-                let table = CalibrationTable::decode(bytes).map_err(Reject::Cal)?;
+                // In place (no table-sized temporary on the bus task's stack); on error the table in force stays.
+                self.cal.decode_into(bytes).map_err(Reject::Cal)?;
                 self.upload.active = false;
-                self.load_calibration(&table, CalSource::Uploaded);
+                self.calibration_changed(CalSource::Uploaded);
             }
             Command::AllanRequest { first, count } => {
                 let end = usize::from(first)

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize, de::DeserializeOwned};
 
 /// Version of the message set; the first byte of every message. 2: `FusedReport::unix_us` (spacecraft time in every
 /// fused report once `SetTime` set it).
-pub const PROTOCOL_VERSION: u8 = 2;
+pub const PROTOCOL_VERSION: u8 = 3;
 /// Largest calibration chunk in one command, bytes.
 pub const CAL_CHUNK_MAX: usize = 192;
 /// Largest encoded message, bytes (fits libcsp's default KISS MTU with room to spare).
@@ -108,6 +108,12 @@ pub struct HealthReport {
     pub telemetry_dropped: u32,
     /// Commands accepted / rejected.
     pub commands: [u32; 2],
+    /// Frames without a valid board temperature, and of those the frames calibrated at the last valid one
+    /// (thermal compensation in force; version 3).
+    pub temp: crate::calib::thermal::TempCounts,
+    /// Temperature the thermal compensation is computed at, 0.01 °C (`None`: no thermal terms in force, or no valid
+    /// temperature yet; version 3).
+    pub thermal_at_cdeg: Option<i16>,
 }
 
 /// Receive errors of one UART since boot, by kind (wrapping).
@@ -522,6 +528,11 @@ mod tests {
                 allan_samples: u64::MAX,
                 telemetry_dropped: u32::MAX,
                 commands: [u32::MAX; 2],
+                temp: crate::calib::thermal::TempCounts {
+                    missing: u32::MAX,
+                    held: u32::MAX,
+                },
+                thermal_at_cdeg: Some(i16::MIN),
             }),
             Telemetry::Housekeeping(HousekeepingReport {
                 uptime_ms: u64::MAX,
@@ -606,7 +617,7 @@ mod tests {
 
     #[test]
     fn known_encoding() {
-        // version 2, tag 300 = varint AC 02, variant 1 (SetDecimation), 15.
+        // version 3, tag 300 = varint AC 02, variant 1 (SetDecimation), 15.
         let mut buf = [0u8; 16];
         let bytes = encode(
             &CommandEnvelope {
@@ -616,7 +627,7 @@ mod tests {
             &mut buf,
         )
         .unwrap();
-        assert_eq!(bytes, [2, 0xAC, 0x02, 1, 15]);
+        assert_eq!(bytes, [3, 0xAC, 0x02, 1, 15]);
         assert_eq!(peek_tag(bytes), 300);
     }
 
@@ -624,19 +635,19 @@ mod tests {
     fn typed_errors() {
         assert_eq!(decode::<CommandEnvelope>(&[]), Err(DecodeError::Empty));
         assert_eq!(
-            decode::<CommandEnvelope>(&[1, 0, 0]),
-            Err(DecodeError::Version(1))
+            decode::<CommandEnvelope>(&[2, 0, 0]),
+            Err(DecodeError::Version(2))
         ); // the previous version
         assert_eq!(
-            decode::<CommandEnvelope>(&[2, 0, 0, 0]),
+            decode::<CommandEnvelope>(&[3, 0, 0, 0]),
             Err(DecodeError::Malformed)
         ); // trailing byte
         assert_eq!(
-            decode::<CommandEnvelope>(&[2, 0, 99]),
+            decode::<CommandEnvelope>(&[3, 0, 99]),
             Err(DecodeError::Malformed)
         ); // no such command
         let mut long = [0u8; 8];
-        long[..4].copy_from_slice(&[2, 0, 5, 200]); // CalChunk with a 200-byte vector announced
+        long[..4].copy_from_slice(&[3, 0, 5, 200]); // CalChunk with a 200-byte vector announced
         assert_eq!(
             decode::<CommandEnvelope>(&long),
             Err(DecodeError::Malformed)

@@ -177,6 +177,7 @@ impl CalibrationFile {
             raw_min: self.raw_min,
             raw_max: self.raw_max,
             groups,
+            ..CalibrationTable::factory()
         })
     }
 

@@ -132,12 +132,16 @@ fn table_error(e: &shared::calib::CalError) -> String {
             "the CRC-32C does not match: the file is damaged or not a calibration table".into()
         }
         E::Version(v) => format!(
-            "written by format version {v}, expected {}",
+            "written by format version {v}, expected 1 or {}",
             shared::calib::CAL_FORMAT_VERSION
         ),
         E::GroupCount(n) => format!("a table of {n} groups"),
         E::Malformed => "the CRC matches but the contents do not parse".into(),
         E::BiasOutOfRange => "a bias beyond ±65536 counts".into(),
+        E::WeightOutOfRange => {
+            "a fixed fusion weight beyond ±1, or an axis whose weights do not sum to a positive value"
+                .into()
+        }
     }
 }
 

@@ -12,8 +12,11 @@
 //! error is the final rounding: ≤ 0.5 output LSB, proven against an f64 reference in the tests.
 
 mod table;
+pub mod thermal;
 
-pub use table::{CAL_FORMAT_VERSION, CalError, CalibrationTable, encoded_len_max};
+pub use table::{
+    CAL_FORMAT_VERSION, CalError, CalibrationTable, GroupThermal, WEIGHT_LIMIT_Q16, encoded_len_max,
+};
 
 use serde::{Deserialize, Serialize};
 
@@ -154,6 +157,15 @@ impl GroupCal {
     pub fn apply(&self, raw: &RawCounts) -> [i32; AXES] {
         let [gx, gy, gz] = affine(&self.gyro_matrix_q12, &self.gyro_bias_q12, &raw.gyro);
         let [ax, ay, az] = affine(&self.accel_matrix_q12, &self.accel_bias_q12, &raw.accel);
+        [gx, gy, gz, ax, ay, az]
+    }
+
+    /// [`Self::apply`] with the biases `bias` in force instead of the group's own (thermal compensation:
+    /// [`thermal::ThermalComp`]).
+    #[inline]
+    pub fn apply_with(&self, bias: &thermal::GroupBias, raw: &RawCounts) -> [i32; AXES] {
+        let [gx, gy, gz] = affine(&self.gyro_matrix_q12, &bias.gyro, &raw.gyro);
+        let [ax, ay, az] = affine(&self.accel_matrix_q12, &bias.accel, &raw.accel);
         [gx, gy, gz, ax, ay, az]
     }
 

@@ -2,23 +2,28 @@
 //!
 //! Encoded form (`encode`/`decode`): postcard of `(format_version: u16, groups: u8, table)` followed by the
 //! CRC-32C of those bytes, 4 bytes little-endian. `decode` checks CRC, version, group count and bias range.
+//! Version 2 added the thermal terms and the fixed fusion weights; a version-1 table (written before them) still
+//! decodes, with neither.
 
-use super::{GroupCal, board};
+use super::{ACCEL_RAW, AXES, GYRO_RAW, GroupCal, board};
 use crate::crc::crc32c;
 use serde::{Deserialize, Serialize};
 
 /// Version of the encoded form; bumped on any change of layout or meaning.
-pub const CAL_FORMAT_VERSION: u16 = 1;
+pub const CAL_FORMAT_VERSION: u16 = 2;
+/// The version before the thermal terms and weights (still decoded).
+const CAL_FORMAT_V1: u16 = 1;
 
 const CRC_LEN: usize = 4;
 
 /// Upper bound of the encoded length of a table of `groups` groups (postcard varints at their longest).
 pub const fn encoded_len_max(groups: usize) -> usize {
-    // version (3) + group count (2) + id (5) + rails (2 × 5) + 28 i32 per group (5 each) + CRC; saturating (no
-    // buffer is `usize::MAX` bytes long)
+    // version (3) + group count (2) + id (5) + rails (2 × 5) + reference temperature (3) + per group 28 i32 of
+    // the affine map, 14 of the thermal terms and 6 weights (5 bytes each) + CRC; saturating (no buffer is
+    // `usize::MAX` bytes long)
     groups
-        .saturating_mul(28 * 5)
-        .saturating_add(3 + 2 + 5 + 10 + CRC_LEN)
+        .saturating_mul((28 + 14 + AXES) * 5)
+        .saturating_add(3 + 2 + 5 + 10 + 3 + CRC_LEN)
 }
 
 /// Why a calibration table could not be encoded or decoded.
@@ -39,6 +44,39 @@ pub enum CalError {
     Malformed,
     /// A bias outside ±65536 counts, where the fixed-point arithmetic is no longer exact.
     BiasOutOfRange,
+    /// A fixed fusion weight outside ±2¹⁶ (Q16 ±1), or an axis whose fixed weights do not sum to a positive value.
+    WeightOutOfRange,
+}
+
+/// Temperature dependence of one group's raw-channel biases: the bias in force at board temperature `T` is
+/// `b + lin·ΔT + quad·ΔT²`, with `ΔT = T − t_ref` in centi-degrees (0.01 °C, the frame's unit). All zero: no
+/// dependence. Q-formats chosen so that a typical MEMS coefficient keeps ≥ 20 significant bits (LPY410AL-class
+/// gyro, 0.05 (°/s)/°C = 8 counts/°C ≈ 2.1·10⁷ LSB in Q28 per c°C; a quadratic 0.001 (°/s)/°C² ≈ 1.8·10⁵ LSB).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct GroupThermal {
+    /// Linear coefficient of each raw gyro channel's bias, counts per 0.01 °C, Q4.28 (2⁻²⁸ counts per c°C).
+    pub gyro_lin_q28: [i32; GYRO_RAW],
+    /// Quadratic coefficient of each raw gyro channel's bias, counts per (0.01 °C)², Q40 (2⁻⁴⁰ counts per c°C²).
+    pub gyro_quad_q40: [i32; GYRO_RAW],
+    /// Linear coefficient of each raw accelerometer channel's bias, counts per 0.01 °C, Q28.
+    pub accel_lin_q28: [i32; ACCEL_RAW],
+    /// Quadratic coefficient of each raw accelerometer channel's bias, counts per (0.01 °C)², Q40.
+    pub accel_quad_q40: [i32; ACCEL_RAW],
+}
+
+impl GroupThermal {
+    /// No temperature dependence.
+    pub const ZERO: Self = Self {
+        gyro_lin_q28: [0; GYRO_RAW],
+        gyro_quad_q40: [0; GYRO_RAW],
+        accel_lin_q28: [0; ACCEL_RAW],
+        accel_quad_q40: [0; ACCEL_RAW],
+    };
+
+    /// Whether any coefficient is non-zero.
+    pub fn any(&self) -> bool {
+        *self != Self::ZERO
+    }
 }
 
 /// Calibration of an array of `G` groups (16 on our board; 8 for the MIMU4444 array).
@@ -53,7 +91,111 @@ pub struct CalibrationTable<const G: usize> {
     /// Per-group calibration.
     #[serde(with = "crate::serde_array")]
     pub groups: [GroupCal; G],
+    /// Board temperature at which `groups`' biases hold, 0.01 °C (the reference of [`Self::thermal`]).
+    pub t_ref_cdeg: i16,
+    /// Per-group thermal terms of the biases (all zero: none; see [`GroupThermal`]).
+    #[serde(with = "crate::serde_array")]
+    pub thermal: [GroupThermal; G],
+    /// Fixed fusion weights per group and axis, Q16 (65 536 = 1; signed, |w| ≤ 2¹⁶), used by
+    /// `FusionMode::Fixed` instead of running inverse-variance weights; all zero: none.
+    #[serde(with = "crate::serde_array")]
+    pub weights_q16: [[i32; AXES]; G],
 }
+
+/// One piece of a table as [`walk`] reads it.
+enum Piece {
+    Head {
+        cal_id: u32,
+        raw_min: i32,
+        raw_max: i32,
+        t_ref_cdeg: i16,
+    },
+    Group(usize, GroupCal),
+    Thermal(usize, GroupThermal),
+    Weights(usize, [i32; AXES]),
+}
+
+/// One postcard value from the front of `rest`.
+fn take<'a, T: Deserialize<'a>>(rest: &mut &'a [u8]) -> Result<T, CalError> {
+    let (value, tail) = postcard::take_from_bytes::<T>(rest).map_err(|_| CalError::Malformed)?;
+    *rest = tail;
+    Ok(value)
+}
+
+/// Reads an encoded table piece by piece, handing each piece to `f` in order, and checks it as `decode` documents
+/// (CRC, version, group count, no trailing bytes, biases, weights). The pieces are postcard's encoding of the
+/// table's fields in order (a struct is its fields back to back, a `serde_array` its elements): the same bytes
+/// `encode` writes. A version-1 table hands the pieces it lacks as zeros (no thermal terms, no weights). Where it
+/// fails, `f` has seen a prefix of the pieces: [`CalibrationTable::decode_into`] checks first.
+fn walk<const G: usize>(bytes: &[u8], mut f: impl FnMut(Piece)) -> Result<(), CalError> {
+    let body_len = bytes
+        .len()
+        .checked_sub(CRC_LEN)
+        .ok_or(CalError::Truncated)?;
+    let (body, crc) = bytes.split_at(body_len);
+    let crc = u32::from_le_bytes(crc.try_into().map_err(|_| CalError::Truncated)?);
+    if crc32c(body) != crc {
+        return Err(CalError::Crc);
+    }
+    let mut rest = body;
+    let header: Header = take(&mut rest)?;
+    let v1 = match header.format_version {
+        CAL_FORMAT_V1 => true,
+        CAL_FORMAT_VERSION => false,
+        v => return Err(CalError::Version(v)),
+    };
+    if usize::from(header.groups) != G {
+        return Err(CalError::GroupCount(header.groups));
+    }
+    let (cal_id, raw_min, raw_max) = (take(&mut rest)?, take(&mut rest)?, take(&mut rest)?);
+    let mut groups_ok = true;
+    for g in 0..G {
+        let cal: GroupCal = take(&mut rest)?;
+        groups_ok &= cal.biases_in_range();
+        f(Piece::Group(g, cal));
+    }
+    let t_ref_cdeg = if v1 { 0 } else { take(&mut rest)? };
+    f(Piece::Head {
+        cal_id,
+        raw_min,
+        raw_max,
+        t_ref_cdeg,
+    });
+    for g in 0..G {
+        f(Piece::Thermal(
+            g,
+            if v1 {
+                GroupThermal::ZERO
+            } else {
+                take(&mut rest)?
+            },
+        ));
+    }
+    // Weights: each within ±1 and, if any is not zero, a positive sum per axis (G ≤ 255 terms of ≤ 2¹⁶: no wrap).
+    let (mut in_range, mut any, mut sums) = (true, false, [0i64; AXES]);
+    for g in 0..G {
+        let w: [i32; AXES] = if v1 { [0; AXES] } else { take(&mut rest)? };
+        for (sum, &x) in sums.iter_mut().zip(&w) {
+            in_range &= x.unsigned_abs() <= WEIGHT_LIMIT_Q16 as u32;
+            any |= x != 0;
+            *sum = sum.wrapping_add(i64::from(x));
+        }
+        f(Piece::Weights(g, w));
+    }
+    if !rest.is_empty() {
+        return Err(CalError::Malformed);
+    }
+    if !groups_ok {
+        return Err(CalError::BiasOutOfRange);
+    }
+    if !in_range || (any && sums.iter().any(|&s| s <= 0)) {
+        return Err(CalError::WeightOutOfRange);
+    }
+    Ok(())
+}
+
+/// Largest magnitude of a fixed weight, Q16 (= 1).
+pub const WEIGHT_LIMIT_Q16: i32 = 1 << 16;
 
 #[derive(Serialize, Deserialize)]
 struct Header {
@@ -69,7 +211,28 @@ impl<const G: usize> CalibrationTable<G> {
             raw_min: 0,
             raw_max: u16::MAX as i32,
             groups: [board::NOMINAL; G],
+            t_ref_cdeg: 0,
+            thermal: [GroupThermal::ZERO; G],
+            weights_q16: [[0; AXES]; G],
         }
+    }
+
+    /// Makes this the factory default, in place (no table-sized temporary).
+    pub fn set_factory(&mut self) {
+        (self.cal_id, self.raw_min, self.raw_max, self.t_ref_cdeg) = (0, 0, u16::MAX as i32, 0);
+        self.groups.fill(board::NOMINAL);
+        self.thermal.fill(GroupThermal::ZERO);
+        self.weights_q16.fill([0; AXES]);
+    }
+
+    /// Whether any group has thermal terms.
+    pub fn has_thermal(&self) -> bool {
+        self.thermal.iter().any(GroupThermal::any)
+    }
+
+    /// Whether the table carries fixed fusion weights (any non-zero).
+    pub fn has_weights(&self) -> bool {
+        self.weights_q16.iter().flatten().any(|&w| w != 0)
     }
 
     /// Writes the encoded table (with CRC) into `buf`; returns the used part.
@@ -97,34 +260,80 @@ impl<const G: usize> CalibrationTable<G> {
         buf.get(..len).ok_or(CalError::BufferTooSmall)
     }
 
-    /// Reads a table written by [`Self::encode`], checking CRC, version, group count and bias range.
+    /// Reads a table written by [`Self::encode`], checking CRC, version, group count, bias and weight ranges.
+    /// Returns the table by value: for the host. The MCU decodes in place ([`Self::decode_into`]).
     pub fn decode(bytes: &[u8]) -> Result<Self, CalError> {
-        let body_len = bytes
-            .len()
-            .checked_sub(CRC_LEN)
-            .ok_or(CalError::Truncated)?;
-        let (body, crc) = bytes.split_at(body_len);
-        let crc = u32::from_le_bytes(crc.try_into().map_err(|_| CalError::Truncated)?);
-        if crc32c(body) != crc {
-            return Err(CalError::Crc);
-        }
-        let (header, rest) =
-            postcard::take_from_bytes::<Header>(body).map_err(|_| CalError::Malformed)?;
-        if header.format_version != CAL_FORMAT_VERSION {
-            return Err(CalError::Version(header.format_version));
-        }
-        if usize::from(header.groups) != G {
-            return Err(CalError::GroupCount(header.groups));
-        }
-        let (table, rest) =
-            postcard::take_from_bytes::<Self>(rest).map_err(|_| CalError::Malformed)?;
-        if !rest.is_empty() {
-            return Err(CalError::Malformed);
-        }
-        if !table.groups.iter().all(GroupCal::biases_in_range) {
-            return Err(CalError::BiasOutOfRange);
-        }
+        let mut table = Self::factory();
+        table.decode_into(bytes)?;
         Ok(table)
+    }
+
+    /// Checks `bytes` as [`Self::decode`] does, keeping nothing.
+    pub fn check(bytes: &[u8]) -> Result<(), CalError> {
+        walk::<G>(bytes, |_| {})
+    }
+
+    /// Decodes `bytes` into `self`, in place; on error `self` is unchanged (the bytes are checked in full first).
+    ///
+    /// Piece by piece (a group's affine map, thermal terms or weights at a time), never a whole table as a
+    /// temporary: a by-value decode of the 3.1 KB table held it two or three times in one stack frame (measured in
+    /// the firmware's ELF: 9.3 KB in `decode`, 6.3 KB in postcard's `take_from_bytes`, over the 8 KiB limit per
+    /// frame, `docs/firmware.md`).
+    pub fn decode_into(&mut self, bytes: &[u8]) -> Result<(), CalError> {
+        Self::check(bytes)?;
+        walk::<G>(bytes, |piece| self.set(piece))
+    }
+
+    /// Whether `bytes` decode to exactly this table (compared piece by piece, as [`Self::decode_into`] reads).
+    pub fn encodes_as(&self, bytes: &[u8]) -> bool {
+        let mut equal = true;
+        walk::<G>(bytes, |piece| equal &= self.has(&piece)).is_ok() && equal
+    }
+
+    fn set(&mut self, piece: Piece) {
+        match piece {
+            Piece::Head {
+                cal_id,
+                raw_min,
+                raw_max,
+                t_ref_cdeg,
+            } => {
+                (self.cal_id, self.raw_min, self.raw_max, self.t_ref_cdeg) =
+                    (cal_id, raw_min, raw_max, t_ref_cdeg)
+            }
+            Piece::Group(g, cal) => {
+                if let Some(slot) = self.groups.get_mut(g) {
+                    *slot = cal;
+                }
+            }
+            Piece::Thermal(g, th) => {
+                if let Some(slot) = self.thermal.get_mut(g) {
+                    *slot = th;
+                }
+            }
+            Piece::Weights(g, w) => {
+                if let Some(slot) = self.weights_q16.get_mut(g) {
+                    *slot = w;
+                }
+            }
+        }
+    }
+
+    fn has(&self, piece: &Piece) -> bool {
+        match *piece {
+            Piece::Head {
+                cal_id,
+                raw_min,
+                raw_max,
+                t_ref_cdeg,
+            } => {
+                (self.cal_id, self.raw_min, self.raw_max, self.t_ref_cdeg)
+                    == (cal_id, raw_min, raw_max, t_ref_cdeg)
+            }
+            Piece::Group(g, ref cal) => self.groups.get(g) == Some(cal),
+            Piece::Thermal(g, ref th) => self.thermal.get(g) == Some(th),
+            Piece::Weights(g, ref w) => self.weights_q16.get(g) == Some(w),
+        }
     }
 
     /// True when `raw` is at or beyond a rail.

@@ -15,7 +15,8 @@
 //!    `weight_interval` samples and each block moves an exponential average by `n / 2^noise_shift` (see `NoiseEst`).
 //! 3. **Mean**: the equal-weight mean (the seed paper's), or the inverse-variance weighted mean with weights
 //!    `w_i = 2¹⁶ · σ²_min / σ²_i` (Q16, the best sensor has 2¹⁶), recomputed every `weight_interval` samples once
-//!    every sensor's estimate has settled; equal weights until then. Division rounds half away from zero.
+//!    every sensor's estimate has settled; equal weights until then; or the calibration table's fixed weights
+//!    (`FusionMode::Fixed`), renormalised over the sensors in use. Division rounds half away from zero.
 //!
 //! If no sensor is left for an axis, the axis is flagged invalid (`used = 0`, value 0): never a division by zero.
 //! Changing weights move the fused bias between the sensors' residual biases; the slow estimator and the weight
@@ -43,6 +44,10 @@ pub enum FusionMode {
     Equal,
     /// Inverse-variance weights from the running noise estimates.
     InverseVariance,
+    /// The calibration table's fixed weights (`CalibrationTable::weights_q16`, chosen on the ground for a τ region),
+    /// renormalised over the sensors in use: an excluded sensor's weight is shared among the others in proportion
+    /// to theirs. Where those weights do not sum to a positive value, the equal-weight mean.
+    Fixed,
 }
 
 /// Fusion parameters.
@@ -196,6 +201,23 @@ pub struct Fusion<const G: usize> {
     weights_ready: bool,
 }
 
+/// Σ wᵢ·xᵢ and Σ wᵢ over the groups in `used` for axis `a`, with the table's weights (|w| ≤ 2¹⁶ in a decoded
+/// table; wrapping beyond that, never a panic): |w·x| ≤ 2⁴⁷ and G ≤ 32 terms, so the sums stay below 2⁵³.
+fn fixed_sums<const G: usize>(
+    weights: &[[i32; AXES]; G],
+    a: usize,
+    x: &[i32; G],
+    used: u32,
+) -> (i64, i64) {
+    let (mut num, mut den) = (0i64, 0i64);
+    for (g, (row, &v)) in weights.iter().zip(x).enumerate() {
+        let w = row.get(a).copied().unwrap_or(0) & ((used >> g) & 1).wrapping_neg() as i32;
+        num = num.wrapping_add(i64::from(w).wrapping_mul(i64::from(v)));
+        den = den.wrapping_add(i64::from(w));
+    }
+    (num, den)
+}
+
 /// `num / den` rounded half away from zero, saturated to `i32`; 0 for `den` ≤ 0 (callers pass `den` > 0).
 pub(crate) fn div_round(num: i64, den: i64) -> i32 {
     let Some(den) = u64::try_from(den).ok().and_then(NonZeroU64::new) else {
@@ -326,6 +348,7 @@ impl<const G: usize> Fusion<G> {
             stuck[0] |= u32::from(gyro_stuck) << g;
             stuck[1] |= u32::from(accel_stuck) << g;
         }
+        let fixed = (self.config.mode == FusionMode::Fixed).then_some(&table.weights_q16);
         let mut excluded = self.config.excluded;
         if self.config.robust {
             for (((faults, excluded), &sat), &stuck) in
@@ -370,7 +393,7 @@ impl<const G: usize> Fusion<G> {
                 };
             });
             let (n, fused, out_mask, mask) =
-                self.fuse_axis(a, &column, sorted, candidates, kind, fold);
+                self.fuse_axis(a, &column, sorted, candidates, kind, fold, fixed);
             (*value, *used, *used_mask) = (fused, n, mask);
             if let Some(o) = outlier.get_mut(kind) {
                 *o |= out_mask;
@@ -398,8 +421,9 @@ impl<const G: usize> Fusion<G> {
     }
 
     /// One axis: `x` the groups' values, `sorted` the candidates' values and `i32::MAX` for the others,
-    /// `candidates` the groups not excluded (bitmask); returns (sensors used,
-    /// fused value, outlier mask, used mask).
+    /// `candidates` the groups not excluded (bitmask), `fixed` the table's weights in `FusionMode::Fixed`; returns
+    /// (sensors used, fused value, outlier mask, used mask).
+    #[allow(clippy::too_many_arguments)]
     fn fuse_axis(
         &mut self,
         a: usize,
@@ -408,6 +432,7 @@ impl<const G: usize> Fusion<G> {
         candidates: u32,
         kind: usize,
         fold: bool,
+        fixed: Option<&[[i32; AXES]; G]>,
     ) -> (u8, i32, u32, u32) {
         let Some(state) = self.axes.get_mut(a) else {
             return (0, 0, 0, 0);
@@ -500,9 +525,15 @@ impl<const G: usize> Fusion<G> {
             self.weights_ready = true;
         }
 
-        // The mean over the used sensors.
-        let (mut num, mut den) = (0i64, 0i64);
-        if all_settled {
+        // The mean over the used sensors: the table's fixed weights where they sum to a positive value, else the
+        // running inverse-variance weights once settled, else equal weights.
+        let (mut num, mut den) = fixed
+            .map(|w| fixed_sums(w, a, x, used))
+            .filter(|&(_, den)| den > 0)
+            .unwrap_or((0, 0));
+        if den > 0 {
+            // Fixed weights.
+        } else if all_settled {
             // Plain arithmetic, so that builds with overflow checks keep checking the bound: every weight is in
             // [1, 2¹⁶] (set so above, or the initial 2¹⁶), so |w · x| ≤ 2⁴⁷ and the sums of G ≤ 32 terms are < 2⁵³.
             #[allow(clippy::arithmetic_side_effects)]

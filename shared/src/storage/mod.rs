@@ -90,6 +90,16 @@ pub struct Loaded<const G: usize> {
     pub slots: [SlotState; 2],
 }
 
+/// What [`CalStore::load_into`] found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LoadInfo {
+    /// Sequence number of the record loaded, `None`: the factory default.
+    pub seq: Option<u32>,
+    /// What each slot held: `[A, B]`.
+    pub slots: [SlotState; 2],
+}
+
 /// Two-slot calibration store over a NOR flash region.
 pub struct CalStore<F> {
     flash: F,
@@ -168,56 +178,73 @@ impl<F: NorFlash> CalStore<F> {
         Ok((SlotState::Valid(seq), len))
     }
 
-    /// Reads `slot` and decodes its table: the one rule of validity that `load` and `store` share. A record whose
+    /// Reads `slot` and checks its table: the one rule of validity that `load` and `store` share. A record whose
     /// CRC is right but whose table does not decode (another format version, another group count) is `Invalid`.
+    /// On `Valid`, the encoded table is in `scratch[..len]`.
     fn read_table<const G: usize>(
         &mut self,
         slot: usize,
         scratch: &mut [u8],
-    ) -> Result<(SlotState, Option<CalibrationTable<G>>), F::Error> {
+    ) -> Result<(SlotState, usize), F::Error> {
         let (s, len) = self.read_slot(slot, scratch)?;
         if !matches!(s, SlotState::Valid(_)) {
-            return Ok((s, None));
+            return Ok((s, 0));
         }
-        Ok(
-            match scratch.get(..len).map(CalibrationTable::<G>::decode) {
-                Some(Ok(table)) => (s, Some(table)),
-                _ => (SlotState::Invalid, None),
-            },
-        )
+        Ok(match scratch.get(..len).map(CalibrationTable::<G>::check) {
+            Some(Ok(())) => (s, len),
+            _ => (SlotState::Invalid, 0),
+        })
     }
 
-    /// Loads the newest valid calibration (by [`is_newer`]), or the factory default if no slot holds one.
-    /// `scratch` must hold an encoded table (`calib::encoded_len_max(G)` bytes).
-    ///
-    /// Never inlined: it holds up to two tables (≈ 1.9 KB each for 16 groups) while it compares the slots, and its
-    /// caller holds the scratch and the result; in one frame they exceeded the MCU's 8 KiB limit per frame
-    /// (`docs/firmware.md`, stack).
-    #[inline(never)]
-    pub fn load<const G: usize>(&mut self, scratch: &mut [u8]) -> Result<Loaded<G>, F::Error> {
+    /// Loads the newest valid calibration (by [`is_newer`]) into `out`, or the factory default if no slot holds
+    /// one. `scratch` must hold an encoded table (`calib::encoded_len_max(G)` bytes). In place: the slots are
+    /// checked first, then the newest is read again and decoded into `out` ([`CalibrationTable::decode_into`]), so
+    /// that no table is ever a temporary (`docs/firmware.md`, stack). On a flash error `out` is unchanged.
+    pub fn load_into<const G: usize>(
+        &mut self,
+        scratch: &mut [u8],
+        out: &mut CalibrationTable<G>,
+    ) -> Result<LoadInfo, F::Error> {
         let mut slots = [SlotState::Empty; 2];
-        let mut best: Option<(u32, CalibrationTable<G>)> = None;
+        let mut best: Option<(usize, u32)> = None;
         for (slot, state) in slots.iter_mut().enumerate() {
-            let (s, table) = self.read_table::<G>(slot, scratch)?;
+            let (s, _) = self.read_table::<G>(slot, scratch)?;
             *state = s;
-            if let (SlotState::Valid(seq), Some(table)) = (s, table) {
+            if let SlotState::Valid(seq) = s {
                 // Slot A is read first: on a tie (neither newer) it stays, as in `newest`.
-                if best.is_none_or(|(b, _)| is_newer(seq, b)) {
-                    best = Some((seq, table));
+                if best.is_none_or(|(_, b)| is_newer(seq, b)) {
+                    best = Some((slot, seq));
                 }
             }
         }
-        Ok(match best {
-            Some((seq, table)) => Loaded {
-                table,
-                seq: Some(seq),
-                slots,
-            },
-            None => Loaded {
-                table: CalibrationTable::factory(),
-                seq: None,
-                slots,
-            },
+        let Some((slot, seq)) = best else {
+            out.set_factory();
+            return Ok(LoadInfo { seq: None, slots });
+        };
+        let (s, len) = self.read_table::<G>(slot, scratch)?;
+        let bytes = scratch.get(..len).unwrap_or(&[]);
+        // The slot checked valid a moment ago; if it reads otherwise now, the factory default (and the slot as seen).
+        if s != SlotState::Valid(seq) || out.decode_into(bytes).is_err() {
+            out.set_factory();
+            if let Some(state) = slots.get_mut(slot) {
+                *state = s;
+            }
+            return Ok(LoadInfo { seq: None, slots });
+        }
+        Ok(LoadInfo {
+            seq: Some(seq),
+            slots,
+        })
+    }
+
+    /// [`Self::load_into`] returning the table by value (host tools and tests; the MCU loads in place).
+    pub fn load<const G: usize>(&mut self, scratch: &mut [u8]) -> Result<Loaded<G>, F::Error> {
+        let mut table = CalibrationTable::factory();
+        let info = self.load_into(scratch, &mut table)?;
+        Ok(Loaded {
+            table,
+            seq: info.seq,
+            slots: info.slots,
         })
     }
 
@@ -232,7 +259,7 @@ impl<F: NorFlash> CalStore<F> {
         // does not decode is not current, so the only loadable record is never the one erased)?
         let mut seqs = [None; 2];
         for (slot, s) in seqs.iter_mut().enumerate() {
-            if let (SlotState::Valid(seq), Some(_)) = self
+            if let (SlotState::Valid(seq), _) = self
                 .read_table::<G>(slot, scratch)
                 .map_err(StoreError::Flash)?
             {
@@ -291,7 +318,11 @@ impl<F: NorFlash> CalStore<F> {
         self.flash.write(base, head).map_err(StoreError::Flash)?;
         // Read back: the slot must load as the record written, or the caller is not told the table is safe.
         match self.read_table::<G>(target, scratch) {
-            Ok((SlotState::Valid(s), Some(t))) if s == seq && t == *table => Ok(seq),
+            Ok((SlotState::Valid(s), len))
+                if s == seq && scratch.get(..len).is_some_and(|b| table.encodes_as(b)) =>
+            {
+                Ok(seq)
+            }
             Ok(_) => Err(StoreError::Verify),
             Err(e) => Err(StoreError::Flash(e)),
         }
