@@ -9,7 +9,7 @@
 
 use crate::formats::framelog::FrameLog;
 use shared::bus::{BusConfig, BusNode, MAX_WIRE_FRAME};
-use shared::calib::{AXES, CalibrationTable, FRAC_BITS, GroupCal, RawCounts};
+use shared::calib::{AXES, CalibrationTable, FRAC_BITS, GroupCal, GroupThermal, RawCounts};
 use shared::fuse::FusionMode;
 use shared::pipeline::{ALLAN_CHANNELS, AllanBank, Output, Pipeline, PipelineConfig};
 use shared::telemetry::{Command, CommandEnvelope, Telemetry, encode};
@@ -82,18 +82,52 @@ pub struct ReplayOutput {
 
 /// `M · (raw − b)` with the table's coefficients as exact reals.
 pub fn calibrate_f64(cal: &GroupCal, raw: &RawCounts) -> [f64; AXES] {
+    calibrate_f64_at(cal, &GroupThermal::ZERO, 0.0, raw)
+}
+
+/// `M · (raw − b(ΔT))`, `b(ΔT) = b + lin·ΔT + quad·ΔT²` (ΔT in 0.01 °C from the table's reference), with the
+/// table's coefficients as exact reals: the model of the core's thermal compensation.
+pub fn calibrate_f64_at(
+    cal: &GroupCal,
+    thermal: &GroupThermal,
+    dt_cdeg: f64,
+    raw: &RawCounts,
+) -> [f64; AXES] {
     let s = f64::from(1u32 << FRAC_BITS);
-    let row = |m: &[i32], b: &[i32], r: &[i32]| -> f64 {
+    let bias = |b: i32, lin: i32, quad: i32| {
+        f64::from(b) / s
+            + f64::from(lin) / 2f64.powi(28) * dt_cdeg
+            + f64::from(quad) / 2f64.powi(40) * dt_cdeg * dt_cdeg
+    };
+    let gb: Vec<f64> = (0..4)
+        .map(|j| {
+            bias(
+                cal.gyro_bias_q12[j],
+                thermal.gyro_lin_q28[j],
+                thermal.gyro_quad_q40[j],
+            )
+        })
+        .collect();
+    let ab: Vec<f64> = (0..3)
+        .map(|j| {
+            bias(
+                cal.accel_bias_q12[j],
+                thermal.accel_lin_q28[j],
+                thermal.accel_quad_q40[j],
+            )
+        })
+        .collect();
+    let row = |m: &[i32], b: &[f64], r: &[i32]| -> f64 {
         m.iter()
             .zip(b)
             .zip(r)
-            .map(|((&m, &b), &r)| f64::from(m) / s * (f64::from(r) - f64::from(b) / s))
+            .map(|((&m, &b), &r)| f64::from(m) / s * (f64::from(r) - b))
             .sum()
     };
     let mut out = [0.0; AXES];
     for i in 0..3 {
-        out[i] = row(&cal.gyro_matrix_q12[i], &cal.gyro_bias_q12, &raw.gyro);
-        out[3 + i] = row(&cal.accel_matrix_q12[i], &cal.accel_bias_q12, &raw.accel);
+        out[i] = row(&cal.gyro_matrix_q12[i], &gb, &raw.gyro);
+        out[3 + i] = row(&cal.accel_matrix_q12[i], &ab, &raw.accel);
     }
     out
 }
@@ -201,11 +235,15 @@ pub fn replay(bytes: &[u8], opts: &ReplayOptions, mut progress: impl FnMut(usize
         // Frame by frame, so that each frame's fused sample can be compared.
         let log = FrameLog::decode(bytes);
         let mut block: Vec<[f64; AXES]> = Vec::new();
+        // The model's own temperature rule: the frame's when valid, else the last valid one, else the reference.
+        let mut last_temp: Option<i16> = None;
         for (i, d) in log.frames.iter().enumerate() {
             let frame = d.frame.to_bytes();
             let mut input = &frame[..];
             core.pipeline.push_link(&mut input);
-            let reference = reference_fused(&core.pipeline, &d.frame.raw, &opts.cal);
+            last_temp = d.frame.temp_cdeg.or(last_temp);
+            let dt_cdeg = last_temp.map_or(0.0, |t| f64::from(t) - f64::from(opts.cal.t_ref_cdeg));
+            let reference = reference_fused(&core.pipeline, &d.frame.raw, &opts.cal, dt_cdeg);
             let fused = *core.pipeline.last_fused();
             for (a, r) in reference.iter().enumerate() {
                 if fused.used[a] > 0 {
@@ -278,25 +316,28 @@ fn reference_fused(
     p: &HostPipeline,
     raw: &shared::wire::RawSample,
     cal: &CalibrationTable<GROUPS>,
+    dt_cdeg: f64,
 ) -> [f64; AXES] {
     let fused = p.last_fused();
     let calibrated: Vec<[f64; AXES]> = raw
         .iter()
-        .zip(&cal.groups)
-        .map(|(codes, g)| calibrate_f64(g, &RawCounts::from_adc(codes)))
+        .zip(cal.groups.iter().zip(&cal.thermal))
+        .map(|(codes, (g, th))| calibrate_f64_at(g, th, dt_cdeg, &RawCounts::from_adc(codes)))
         .collect();
-    let weighted = p.fusion().config().mode == FusionMode::InverseVariance;
+    let mode = p.fusion().config().mode;
     std::array::from_fn(|a| {
         let used: Vec<usize> = (0..GROUPS)
             .filter(|g| fused.used_mask[a] & (1 << g) != 0)
             .collect();
         let settled = used.iter().all(|&g| p.fusion().noise_var(g, a).is_some());
-        let w = |g: usize| {
-            if weighted && settled {
+        // Fixed: the table's weights over the sensors used, if they sum to a positive value.
+        let fixed_sum: f64 = used.iter().map(|&g| f64::from(cal.weights_q16[g][a])).sum();
+        let w = |g: usize| match mode {
+            FusionMode::Fixed if fixed_sum > 0.0 => f64::from(cal.weights_q16[g][a]),
+            FusionMode::InverseVariance if settled => {
                 f64::from(p.fusion().weight_q16(g, a).unwrap_or(0))
-            } else {
-                1.0
             }
+            _ => 1.0,
         };
         let den: f64 = used.iter().map(|&g| w(g)).sum();
         if den == 0.0 {

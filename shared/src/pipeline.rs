@@ -451,7 +451,9 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             CalCheck::Factory => table_crc(&CalibrationTable::factory()),
             CalCheck::Loaded(crc) => crc,
         };
-        expected.is_some() && table_crc(&self.cal) == expected
+        expected.is_some()
+            && table_crc(&self.cal) == expected
+            && self.thermal.consistent_with(&self.cal)
     }
 
     /// Flips bit `bit % 32` of group `group % GROUPS`'s first gyro bias in the calibration held in RAM, as a
@@ -760,12 +762,8 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         // still cost 0.4–0.7 k more than the loops.
         self.thermal.update(&self.cal, head.temp_cdeg);
         let FrameScratch { raw, axes } = &mut self.scratch;
-        for ((out, r), (cal, bias)) in axes
-            .iter_mut()
-            .zip(raw.iter())
-            .zip(self.cal.groups.iter().zip(self.thermal.biases()))
-        {
-            *out = cal.apply_with(bias, r);
+        for ((out, r), cal) in axes.iter_mut().zip(raw.iter()).zip(self.thermal.groups()) {
+            *out = cal.apply(r);
         }
         // Fused straight into `last` (read below, and by `last_fused`).
         self.fusion.fuse_into(raw, axes, &self.cal, &mut self.last);

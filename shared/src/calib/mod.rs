@@ -160,15 +160,6 @@ impl GroupCal {
         [gx, gy, gz, ax, ay, az]
     }
 
-    /// [`Self::apply`] with the biases `bias` in force instead of the group's own (thermal compensation:
-    /// [`thermal::ThermalComp`]).
-    #[inline]
-    pub fn apply_with(&self, bias: &thermal::GroupBias, raw: &RawCounts) -> [i32; AXES] {
-        let [gx, gy, gz] = affine(&self.gyro_matrix_q12, &bias.gyro, &raw.gyro);
-        let [ax, ay, az] = affine(&self.accel_matrix_q12, &bias.accel, &raw.accel);
-        [gx, gy, gz, ax, ay, az]
-    }
-
     /// True when every bias is within [`BIAS_LIMIT_Q12`], the domain where [`Self::apply`] is exact.
     pub fn biases_in_range(&self) -> bool {
         self.gyro_bias_q12

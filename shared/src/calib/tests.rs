@@ -205,3 +205,170 @@ fn out_of_range_bias_is_refused() {
         Err(CalError::BiasOutOfRange)
     );
 }
+
+/// The f64 reference of a shifted bias: `b + lin·ΔT + quad·ΔT²` with the coefficients as exact reals (Q12 counts).
+fn shifted_reference(b: i32, lin: i32, quad: i32, dt: i32) -> f64 {
+    let dt = f64::from(dt);
+    f64::from(b)
+        + f64::from(lin) / f64::from(1u32 << 16) * dt
+        + f64::from(quad) / 2f64.powi(28) * dt * dt
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(4000))]
+    /// The thermal bias shift is the exactly rounded real value (≤ 0.5 Q12 LSB = 2⁻¹³ count), wherever the result
+    /// stays within the bias limit, for any coefficients and any ΔT the board can report.
+    #[test]
+    fn thermal_shift_is_exactly_rounded(
+        b in -BIAS_LIMIT_Q12..=BIAS_LIMIT_Q12,
+        lin in any::<i32>(),
+        quad in any::<i32>(),
+        dt in -thermal::DT_LIMIT_CDEG..=thermal::DT_LIMIT_CDEG,
+    ) {
+        let want = shifted_reference(b, lin, quad, dt);
+        let got = thermal::shifted(b, lin, quad, dt);
+        let limit = f64::from(BIAS_LIMIT_Q12);
+        if want.abs() <= limit {
+            // f64 carries ~2⁻⁵² relative error on values < 2⁶²⁻²⁸: 1e-6 LSB of slack.
+            prop_assert!((f64::from(got) - want).abs() <= 0.5 + 1e-6, "got {got}, want {want}");
+        } else {
+            prop_assert_eq!(f64::from(got), limit.copysign(want));
+        }
+    }
+}
+
+#[test]
+fn thermal_shift_of_a_typical_gyro() {
+    // 0.05 (°/s)/°C on a 6250 µ°/s-per-count channel = 8 counts/°C = 0.08 counts per c°C; +10 °C → +80 counts.
+    let lin = (0.08 * 2f64.powi(28)).round() as i32;
+    let b = board::GYRO_ZERO_Q12;
+    assert_eq!(thermal::shifted(b, lin, 0, 1000), b + 80 * 4096);
+    assert_eq!(thermal::shifted(b, lin, 0, -1000), b - 80 * 4096);
+    // A quadratic 0.01 counts/°C² = 1e-6 counts per c°C²: +1 count at 10 °C either side.
+    let quad = (1e-6 * 2f64.powi(40)).round() as i32;
+    assert_eq!(thermal::shifted(b, 0, quad, 1000), b + 4096);
+    assert_eq!(thermal::shifted(b, 0, quad, -1000), b + 4096);
+    // Beyond ±200 °C the difference is clamped (a corrupt reading cannot overflow).
+    assert_eq!(
+        thermal::shifted(b, lin, 0, i32::MAX),
+        thermal::shifted(b, lin, 0, thermal::DT_LIMIT_CDEG)
+    );
+}
+
+fn thermal_table() -> CalibrationTable<2> {
+    let mut t = CalibrationTable::<2>::factory();
+    t.t_ref_cdeg = 2000;
+    t.thermal[1].gyro_lin_q28[2] = 1 << 28; // 1 count per c°C on group 1, raw gyro channel 2 (B y)
+    t.thermal[0].accel_quad_q40[0] = 1 << 30; // 2⁻¹⁰ counts per c°C² on group 0, accel x
+    t
+}
+
+#[test]
+fn compensation_follows_the_frame_temperature_and_holds_the_last_valid_one() {
+    let t = thermal_table();
+    let mut c = thermal::ThermalComp::<2>::new();
+    c.load(&t);
+    let reference = c.groups()[1].gyro_bias_q12[2];
+    assert_eq!(reference, t.groups[1].gyro_bias_q12[2]);
+    // After a restart no temperature is known: the reference biases, counted as missing but not held.
+    c.update(&t, None);
+    assert_eq!(c.groups()[1].gyro_bias_q12[2], reference);
+    assert_eq!(c.applied_cdeg(), None);
+    assert_eq!(
+        c.counts(),
+        thermal::TempCounts {
+            missing: 1,
+            held: 0
+        }
+    );
+    // 2.50 °C above the reference: +250 counts on that channel; accel x: +250²/1024 = 61.03515625 counts.
+    c.update(&t, Some(2250));
+    assert_eq!(c.groups()[1].gyro_bias_q12[2], reference + 250 * 4096);
+    assert_eq!(
+        c.groups()[0].accel_bias_q12[0],
+        t.groups[0].accel_bias_q12[0] + 250_000
+    ); // 61.035… · 4096 = 250 000
+    assert_eq!(c.groups()[0].gyro_bias_q12, t.groups[0].gyro_bias_q12); // no terms there
+    // A frame without temperature keeps the last valid one (held), and another table keeps that temperature.
+    c.update(&t, None);
+    assert_eq!(c.groups()[1].gyro_bias_q12[2], reference + 250 * 4096);
+    assert_eq!(
+        c.counts(),
+        thermal::TempCounts {
+            missing: 2,
+            held: 1
+        }
+    );
+    c.load(&t);
+    assert_eq!(c.groups()[1].gyro_bias_q12[2], reference);
+    c.update(&t, None);
+    assert_eq!(c.groups()[1].gyro_bias_q12[2], reference + 250 * 4096);
+    // A table without thermal terms: its biases, whatever the temperature; missing frames still counted.
+    let plain = CalibrationTable::<2>::factory();
+    c.load(&plain);
+    c.update(&plain, Some(-4000));
+    c.update(&plain, None);
+    assert_eq!(c.groups()[1].gyro_bias_q12, plain.groups[1].gyro_bias_q12);
+    assert_eq!(c.applied_cdeg(), None);
+    assert_eq!(
+        c.counts(),
+        thermal::TempCounts {
+            missing: 4,
+            held: 2
+        }
+    );
+}
+
+#[test]
+fn format_2_round_trips_and_format_1_still_loads() {
+    let mut t = thermal_table();
+    t.cal_id = 77;
+    t.weights_q16[0] = [1 << 16, 1 << 15, 0, 1, 2, 3];
+    t.weights_q16[1] = [1, 1 << 15, 9, 1, 2, 3];
+    let mut buf = [0u8; encoded_len_max(2)];
+    let bytes = t.encode(&mut buf).unwrap().to_vec();
+    assert_eq!(bytes[0], CAL_FORMAT_VERSION as u8);
+    assert_eq!(CalibrationTable::<2>::decode(&bytes), Ok(t));
+    assert!(t.encodes_as(&bytes));
+    let mut other = t;
+    other.thermal[1].gyro_quad_q40[3] = 5;
+    assert!(!other.encodes_as(&bytes));
+
+    // A version-1 table, written as version 1 wrote it: header (1, G), id, rails, groups, CRC.
+    let mut v1 = [0u8; 512];
+    let mut n = postcard::to_slice(&(1u16, 2u8, 77u32, 0i32, 65535i32), &mut v1)
+        .unwrap()
+        .len();
+    for g in &t.groups {
+        n += postcard::to_slice(g, &mut v1[n..]).unwrap().len();
+    }
+    let crc = crate::crc::crc32c(&v1[..n]);
+    v1[n..n + 4].copy_from_slice(&crc.to_le_bytes());
+    let old = CalibrationTable::<2>::decode(&v1[..n + 4]).unwrap();
+    assert_eq!(old.groups, t.groups);
+    assert_eq!(old.cal_id, 77);
+    assert!(!old.has_thermal() && !old.has_weights());
+    assert_eq!(old.t_ref_cdeg, 0);
+}
+
+#[test]
+fn a_failed_decode_leaves_the_table_in_force() {
+    let mut bad = thermal_table();
+    bad.weights_q16[0][4] = -(1 << 16);
+    bad.weights_q16[1][4] = 1 << 15; // axis 4 sums to −0.5: refused
+    let mut buf = [0u8; encoded_len_max(2)];
+    let bytes = bad.encode(&mut buf).unwrap().to_vec();
+    let mut t = thermal_table();
+    let before = t;
+    assert_eq!(t.decode_into(&bytes), Err(CalError::WeightOutOfRange));
+    assert_eq!(t, before);
+    bad.weights_q16[1][4] = (1 << 16) + 1; // beyond ±1
+    let bytes = bad.encode(&mut buf).unwrap().to_vec();
+    assert_eq!(
+        CalibrationTable::<2>::check(&bytes),
+        Err(CalError::WeightOutOfRange)
+    );
+    let mut f = thermal_table();
+    f.set_factory();
+    assert_eq!(f, CalibrationTable::factory());
+}

@@ -3,8 +3,9 @@
 //!
 //! The biases depend on temperature only, so they are recomputed when the frame's temperature differs from the one
 //! they were computed for, not every frame: the board's sensor reads in 0.01 °C and an orbit's ±8 °C cycle changes
-//! that reading about once a second, so the recomputation (≈ 1 k Cortex-M4 instructions for 16 groups) is paid on
-//! about one frame in 600; `mcu-bench` measures both the usual frame and one that recomputes.
+//! that reading about once a second, so the recomputation (4.8 k Cortex-M4 instructions for 16 groups, `mcu-bench`:
+//! 29 767 per frame when every frame brings a new temperature, 24 934 when it is steady) is paid on about one frame
+//! in 600.
 //!
 //! A frame without a valid temperature is calibrated at the last valid one (counted in `held`); before the first
 //! valid temperature since the pipeline started, no stale value exists and the table's reference biases apply
@@ -90,10 +91,13 @@ pub struct TempCounts {
     pub held: u32,
 }
 
-/// The biases in force for a table with thermal terms, kept in step with the frames' temperature.
+/// The calibration in force for a table with thermal terms, kept in step with the frames' temperature: each
+/// group's affine map with the biases of the temperature (a whole `GroupCal` per group, so that the frame's
+/// calibration is the same code with or without thermal terms: applying separately kept biases cost 2.1 k
+/// Cortex-M4 instructions per frame more, `mcu-bench`).
 #[derive(Clone, Copy, Debug)]
 pub struct ThermalComp<const G: usize> {
-    biases: [GroupBias; G],
+    groups: [GroupCal; G],
     /// The table has thermal terms (else the biases are the table's and never change).
     active: bool,
     /// Temperature the biases were computed at (`None`: the reference biases, as loaded).
@@ -104,13 +108,10 @@ pub struct ThermalComp<const G: usize> {
 }
 
 impl<const G: usize> ThermalComp<G> {
-    /// Biases of the factory table (usable in `const`).
+    /// The factory table in force (usable in `const`).
     pub const fn new() -> Self {
         Self {
-            biases: [GroupBias {
-                gyro: [super::board::GYRO_ZERO_Q12; GYRO_RAW],
-                accel: [super::board::ACCEL_ZERO_Q12; ACCEL_RAW],
-            }; G],
+            groups: [super::board::NOMINAL; G],
             active: false,
             applied_cdeg: None,
             last_valid_cdeg: None,
@@ -124,12 +125,7 @@ impl<const G: usize> ThermalComp<G> {
     /// A new table is in force: its reference biases now; its thermal terms from the next frame on. The last valid
     /// temperature is kept (it is not stale: the board did not restart).
     pub fn load(&mut self, table: &CalibrationTable<G>) {
-        for (b, cal) in self.biases.iter_mut().zip(&table.groups) {
-            *b = GroupBias {
-                gyro: cal.gyro_bias_q12,
-                accel: cal.accel_bias_q12,
-            };
-        }
+        self.groups.clone_from(&table.groups);
         self.active = table.has_thermal();
         self.applied_cdeg = None;
     }
@@ -161,20 +157,45 @@ impl<const G: usize> ThermalComp<G> {
     #[inline(never)]
     fn recompute(&mut self, table: &CalibrationTable<G>, t_cdeg: i16) {
         let dt = i32::from(t_cdeg).wrapping_sub(i32::from(table.t_ref_cdeg));
-        for ((b, cal), th) in self
-            .biases
+        for ((out, cal), th) in self
+            .groups
             .iter_mut()
             .zip(&table.groups)
             .zip(&table.thermal)
         {
-            *b = GroupBias::at(cal, th, dt);
+            let b = GroupBias::at(cal, th, dt);
+            (out.gyro_bias_q12, out.accel_bias_q12) = (b.gyro, b.accel);
         }
         self.applied_cdeg = Some(t_cdeg);
     }
 
-    /// The biases in force, one per group.
-    pub fn biases(&self) -> &[GroupBias; G] {
-        &self.biases
+    /// The calibration in force, one per group: the table's, with the biases of [`Self::applied_cdeg`].
+    pub fn groups(&self) -> &[GroupCal; G] {
+        &self.groups
+    }
+
+    /// Whether [`Self::groups`] is what `table` gives at [`Self::applied_cdeg`] (the RAM check: the copy is not
+    /// covered by the table's CRC).
+    pub fn consistent_with(&self, table: &CalibrationTable<G>) -> bool {
+        let dt = self
+            .applied_cdeg
+            .map(|t| i32::from(t).wrapping_sub(i32::from(table.t_ref_cdeg)));
+        self.groups
+            .iter()
+            .zip(&table.groups)
+            .zip(&table.thermal)
+            .all(|((mine, cal), th)| {
+                let b = dt.map_or(
+                    GroupBias {
+                        gyro: cal.gyro_bias_q12,
+                        accel: cal.accel_bias_q12,
+                    },
+                    |dt| GroupBias::at(cal, th, dt),
+                );
+                mine.gyro_matrix_q12 == cal.gyro_matrix_q12
+                    && mine.accel_matrix_q12 == cal.accel_matrix_q12
+                    && (mine.gyro_bias_q12, mine.accel_bias_q12) == (b.gyro, b.accel)
+            })
     }
 
     /// The temperature the biases were computed at (`None`: the table's reference biases).

@@ -373,3 +373,49 @@ fn fault_counts_add_per_group_bits_and_wrap() {
         }
     );
 }
+
+/// The table's fixed weights: the weighted mean over the sensors in use, renormalised when one is excluded, and the
+/// equal mean where the weights in use do not sum to a positive value.
+#[test]
+fn fixed_weights_are_renormalised_over_the_sensors_in_use() {
+    let mut table = CalibrationTable::<G>::factory();
+    let mut axes = [[0i32; AXES]; G];
+    for (g, a) in axes.iter_mut().enumerate() {
+        a[GX] = 1000 * g as i32;
+        a[AX] = 7;
+    }
+    // gx: group g weighted g + 1 (Q16 units of 1/16); ax: only group 0 positive, the others zero.
+    for (g, w) in table.weights_q16.iter_mut().enumerate() {
+        w[GX] = 4096 * (g as i32 + 1);
+        w[AX] = if g == 0 { 1 << 16 } else { 0 };
+    }
+    let raw = [RawCounts {
+        gyro: [20_000; 4],
+        accel: [24_000; 3],
+    }; G];
+    let config = FusionConfig {
+        mode: FusionMode::Fixed,
+        robust: false,
+        ..FusionConfig::DEFAULT
+    };
+    let mut f = Fusion::<G>::new(config);
+    let s = f.fuse(&raw, &axes, &table);
+    // Σ (g+1)·1000g / Σ (g+1), g = 0..15: 1000 · Σ g(g+1) / Σ (g+1) = 1000 · 1360 / 136 = 10 000.
+    assert_eq!(s.axes[GX], 10_000);
+    assert_eq!(s.axes[AX], 7);
+    // Group 15 (the heaviest) excluded: its weight is shared in proportion: 1000 · Σ_{g<15} g(g+1) / Σ_{g<15}(g+1)
+    // = 1000 · 1120 / 120 = 9333.33… → 9333.
+    f.set_config(FusionConfig {
+        excluded: [1 << 15, 1],
+        ..config
+    });
+    let s = f.fuse(&raw, &axes, &table);
+    assert_eq!(s.axes[GX], 9333);
+    assert_eq!(s.used[GX], 15);
+    // ax: the only weighted sensor is excluded; the equal mean of the rest.
+    assert_eq!(s.axes[AX], 7);
+    assert_eq!(s.used[AX], 15);
+    // Without weights in the table, Fixed is the equal mean.
+    let s = f.fuse(&raw, &axes, &CalibrationTable::factory());
+    assert_eq!(s.axes[GX], 7000); // mean of 0..14 thousand
+}

@@ -927,3 +927,102 @@ fn pps_edges_anchor_spacecraft_time_on_the_whole_second() {
     assert!(matches!(out[at - 1], Output::Telemetry(Telemetry::Time(_))));
     assert_eq!(out[at], Output::Telemetry(Telemetry::Pps(report)));
 }
+
+/// A board whose every gyro zero level moves by +8 counts/°C (0.05 (°/s)/°C): the uncompensated fused rate follows
+/// the temperature; with the table's thermal terms it stays at the true rate, a frame without temperature is
+/// calibrated at the last valid one, and health counts both.
+#[test]
+fn thermal_terms_follow_the_frame_temperature() {
+    let mut rng = Rng::new(3);
+    let make = |temp: Option<i16>, seq: u16, rng: &mut Rng| {
+        let mut f = frame(seq, 15, [1.0, 0.0, 0.0], [0.0, 0.0, -1.0], 0.0, rng);
+        // The zero level at 20 °C + 8 counts/°C: codes moved by 8 · (T − 20) counts (whole counts: T in whole °C).
+        let shift = temp.map_or(0, |t| 8 * (i32::from(t) - 2000) / 100);
+        for g in f.raw.iter_mut() {
+            for c in &mut g[..4] {
+                *c = (i32::from(*c) + shift) as u16;
+            }
+        }
+        f.temp_cdeg = temp;
+        f
+    };
+    // 32 frames at 30 °C, then 32 without a valid temperature (the board still at 30 °C).
+    let frames: Vec<FrameRepr> = (0..64)
+        .map(|i| make(if i < 32 { Some(3000) } else { None }, i, &mut rng))
+        .collect();
+    let config = PipelineConfig {
+        health_every: 0,
+        nav: false,
+        ..PipelineConfig::DEFAULT
+    };
+    // Without compensation, +80 counts on every gyro channel = +0.5 °/s on x and y and z.
+    let mut p = Pipeline::new_boxed(config);
+    let plain = fused(&run(&mut p, &stream(&frames[..32])));
+    assert_eq!(plain[0].rate_udps, [1_500_000, 500_000, 500_000]);
+
+    let mut table = CalibrationTable::<GROUPS>::factory();
+    table.t_ref_cdeg = 2000;
+    for th in table.thermal.iter_mut() {
+        th.gyro_lin_q28 = [(0.08 * 2f64.powi(28)).round() as i32; 4];
+    }
+    let mut p = Pipeline::new_boxed(config);
+    p.load_calibration(&table, CalSource::Uploaded);
+    let reports = fused(&run(&mut p, &stream(&frames)));
+    assert_eq!(reports[0].rate_udps, [1_000_000, 0, 0]);
+    // Held at 30 °C: the codes (shift 0 without a temperature in `make`) are the zero level at 20 °C, so the held
+    // compensation subtracts 80 counts that are not there: exactly −0.5 °/s, which shows it was held, not dropped.
+    assert_eq!(reports[1].rate_udps, [500_000, -500_000, -500_000]);
+    let h = p.health();
+    assert_eq!(
+        h.temp,
+        crate::calib::thermal::TempCounts {
+            missing: 32,
+            held: 32
+        }
+    );
+    assert_eq!(h.thermal_at_cdeg, Some(3000));
+    // A new pipeline (a restart) has no temperature to hold: the reference biases, counted as missing only.
+    let mut p = Pipeline::new_boxed(config);
+    p.load_calibration(&table, CalSource::Stored);
+    let reports = fused(&run(&mut p, &stream(&frames[32..])));
+    assert_eq!(reports[0].rate_udps, [1_000_000, 0, 0]);
+    assert_eq!(
+        p.health().temp,
+        crate::calib::thermal::TempCounts {
+            missing: 32,
+            held: 0
+        }
+    );
+    assert_eq!(p.health().thermal_at_cdeg, None);
+}
+
+/// Fixed weights arrive with a table and are in force at once; `SetFusion` can leave and resume them, and is
+/// refused for a table without them.
+#[test]
+fn fixed_weights_come_with_the_table() {
+    let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
+    let fixed = Command::SetFusion {
+        mode: FusionMode::Fixed,
+        robust: true,
+    };
+    assert_eq!(
+        ack(&command(&mut p, 1, fixed.clone())).result,
+        Err(Reject::BadArgument)
+    );
+    let mut table = CalibrationTable::<GROUPS>::factory();
+    for w in table.weights_q16.iter_mut() {
+        *w = [1 << 12; 6];
+    }
+    p.load_calibration(&table, CalSource::Uploaded);
+    assert_eq!(p.fusion().config().mode, FusionMode::Fixed);
+    let iv = Command::SetFusion {
+        mode: FusionMode::InverseVariance,
+        robust: true,
+    };
+    assert_eq!(ack(&command(&mut p, 2, iv)).result, Ok(()));
+    assert_eq!(ack(&command(&mut p, 3, fixed)).result, Ok(()));
+    assert_eq!(p.health().fusion, FusionMode::Fixed);
+    // A table without weights ends their use.
+    p.load_calibration(&CalibrationTable::factory(), CalSource::Uploaded);
+    assert_eq!(p.fusion().config().mode, FusionConfig::DEFAULT.mode);
+}
