@@ -24,13 +24,10 @@ use crate::allan::{AllanSet, LEVELS};
 use crate::calib::thermal::ThermalComp;
 use crate::calib::{AXES, CalibrationTable, RawCounts, encoded_len_max};
 use crate::crc::crc32c;
-use crate::fuse::{
-    FaultCounts, FusedSample, Fusion, FusionConfig, FusionMode, HealthMask, div_round,
-};
-use crate::nav::NavIntegrator;
+use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, FusionMode, HealthMask};
 use crate::telemetry::{
-    Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, FusedReport,
-    HealthReport, Mode, NavReport, PpsReport, Reject, Telemetry, TimeReport, decode, peek_tag,
+    Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, HealthReport,
+    Mode, PpsReport, Reject, Telemetry, TimeReport, decode, peek_tag,
 };
 use crate::wire::clock::TicksToUs;
 use crate::wire::frame::{FRAME_LEN, GROUPS};
@@ -138,104 +135,6 @@ pub enum Output {
     },
 }
 
-#[derive(Clone, Copy, Debug)]
-struct Averager {
-    sum: [i64; AXES],
-    valid: [u16; AXES],
-    used_min: [u8; AXES],
-    health: HealthMask,
-    temp_sum: i32,
-    temp_n: u16,
-    frames: u16,
-    t_us: u64,
-}
-
-impl Averager {
-    const NEW: Self = Self {
-        sum: [0; AXES],
-        valid: [0; AXES],
-        used_min: [u8::MAX; AXES],
-        health: HealthMask {
-            gyro: crate::fuse::SensorFaults {
-                saturated: 0,
-                stuck: 0,
-                outlier: 0,
-            },
-            accel: crate::fuse::SensorFaults {
-                saturated: 0,
-                stuck: 0,
-                outlier: 0,
-            },
-        },
-        temp_sum: 0,
-        temp_n: 0,
-        frames: 0,
-        t_us: 0,
-    };
-
-    /// Adds one frame's fused sample.
-    ///
-    /// Plain arithmetic, so that builds with overflow checks keep checking the bound: an interval holds at most
-    /// `frames_per_output` ≤ `u16::MAX` frames (`process` reports and resets it when it is full), so `frames`,
-    /// `valid` and `temp_n` stay ≤ 65535, |`sum`| ≤ 65535 · 2³¹ < 2⁴⁸ and |`temp_sum`| ≤ 65535 · 2¹⁵ < 2³¹.
-    #[allow(clippy::arithmetic_side_effects)]
-    fn add(&mut self, s: &FusedSample, temp_cdeg: Option<i16>, t_us: u64) {
-        if self.frames == 0 {
-            self.t_us = t_us;
-        }
-        self.frames += 1;
-        for (((sum, valid), used_min), (&used, &x)) in self
-            .sum
-            .iter_mut()
-            .zip(&mut self.valid)
-            .zip(&mut self.used_min)
-            .zip(s.used.iter().zip(&s.axes))
-        {
-            if used > 0 {
-                *sum += i64::from(x);
-                *valid += 1;
-                *used_min = (*used_min).min(used);
-            }
-        }
-        self.health.merge(&s.health);
-        if let Some(t) = temp_cdeg {
-            self.temp_sum += i32::from(t);
-            self.temp_n += 1;
-        }
-    }
-
-    /// The interval's report; `epoch_us` maps frame time to spacecraft time (`None`: not set).
-    fn report(&self, seq: u32, epoch_us: Option<u64>) -> FusedReport {
-        let mut mean = [0i32; AXES];
-        let mut used = [0u8; AXES];
-        for ((((m, u), &sum), &valid), &used_min) in mean
-            .iter_mut()
-            .zip(&mut used)
-            .zip(&self.sum)
-            .zip(&self.valid)
-            .zip(&self.used_min)
-        {
-            if valid > 0 {
-                (*m, *u) = (div_round(sum, i64::from(valid)), used_min);
-            }
-        }
-        let [rx, ry, rz, ax, ay, az] = mean;
-        FusedReport {
-            seq,
-            t_us: self.t_us,
-            frames: self.frames,
-            rate_udps: [rx, ry, rz],
-            accel_ug: [ax, ay, az],
-            used,
-            health: self.health,
-            temp_cdeg: (self.temp_n > 0)
-                .then(|| div_round(i64::from(self.temp_sum), i64::from(self.temp_n)) as i16),
-            // Wrapping as in `Pipeline::time_report`: the epoch is a difference of two times modulo 2⁶⁴.
-            unix_us: epoch_us.map(|e| self.t_us.wrapping_add(e)),
-        }
-    }
-}
-
 /// The fields of a frame besides its ADC codes that the pipeline uses.
 #[derive(Clone, Copy, Debug, Default)]
 struct FrameHead {
@@ -320,10 +219,7 @@ pub struct Pipeline<B> {
     mode: Mode,
     /// Frame time of the last frame, µs.
     last_t_us: Option<u64>,
-    nav: NavIntegrator,
-    /// Frame-clock ticks at the start of the navigation interval (the end of the last one).
-    nav_start_ticks: Option<u64>,
-    nav_clipped: u16,
+    nav: NavStage,
     /// Spacecraft time minus frame time, µs (wrapping), once `SetTime` was received.
     time_epoch_us: Option<u64>,
     /// Smallest arrival time minus frame time, µs, since the last accepted PPS edge: the frame clock in the arrival
@@ -364,7 +260,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 axes: [0; AXES],
                 used: [0; AXES],
                 used_mask: [0; AXES],
-                health: Averager::NEW.health,
+                health: HealthMask::NONE,
             },
             avg: Averager::NEW,
             out_seq: 0,
@@ -396,9 +292,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 rejected: 0,
                 last_correction_us: 0,
             },
-            nav: NavIntegrator::new(),
-            nav_start_ticks: None,
-            nav_clipped: 0,
+            nav: NavStage::NEW,
             invalid_frames: 0,
             telemetry_dropped: 0,
             commands: [0; 2],
@@ -697,9 +591,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     fn restart_statistics(&mut self) {
         self.allan.borrow_mut().0.reset();
         self.avg = Averager::NEW;
-        self.nav = NavIntegrator::new();
-        self.nav_start_ticks = None;
-        self.nav_clipped = 0;
+        self.nav = NavStage::NEW;
     }
 
     /// Frames lost before a frame at `decimation`: the sequence counter's count (`seq_gap`), unless the arrival gap
@@ -819,54 +711,18 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         }
     }
 
-    /// One frame into the navigation increments: the fused rate and specific force of `last` (SI units, `f32`) over
-    /// the frame's time step; lost frames before it, and a frame without a valid fused sample, bridged.
+    /// One frame into the navigation increments (see [`NavStage::add_frame`]).
     fn integrate(&mut self, decimation: u16, missing: u32, base_ticks: u64) {
-        let fused = &self.last;
-        const RAD_PER_UDEG: f32 = core::f32::consts::PI / 180.0e6;
-        const MPS2_PER_UG: f32 = 9.806_65e-6;
         let dt_s = f32::from(decimation) + 1.0;
         let dt_s = dt_s * 1000.0 / self.config.fpga_base_rate_millihz.max(1) as f32;
-        if self.nav_start_ticks.is_none() {
-            self.nav_start_ticks = Some(base_ticks);
-        } else {
-            self.nav.bridge(missing, dt_s);
-        }
-        if fused.valid() {
-            let [gx, gy, gz, ax, ay, az] = fused.axes.map(|x| x as f32);
-            self.nav.add(
-                [gx * RAD_PER_UDEG, gy * RAD_PER_UDEG, gz * RAD_PER_UDEG],
-                [ax * MPS2_PER_UG, ay * MPS2_PER_UG, az * MPS2_PER_UG],
-                dt_s,
-            );
-        } else {
-            self.nav.bridge(1, dt_s);
-        }
-        if fused.health.gyro.saturated | fused.health.accel.saturated != 0 {
-            self.nav_clipped = self.nav_clipped.saturating_add(1);
-        }
+        self.nav.add_frame(&self.last, dt_s, missing, base_ticks);
     }
 
     /// The interval's [`NavReport`], ending at frame-clock tick `end`.
     fn push_nav(&mut self, seq: u32, end: u64) {
-        let inc = self.nav.take();
-        let start = self.nav_start_ticks.replace(end).unwrap_or(end);
-        let rate = self.config.fpga_base_rate_millihz;
-        let t_us = FrameClock::ticks_to_us(start, rate);
-        let dt_us = FrameClock::ticks_to_us(end, rate).saturating_sub(t_us);
-        // f32 → i64 casts saturate: a value beyond ±9.2e18 nrad cannot occur in one interval.
-        let nrad = inc.dtheta_rad.map(|x| (x * 1.0e9) as i64);
-        let umps = inc.dv_mps.map(|x| (x * 1.0e6) as i64);
-        let report = NavReport {
-            seq,
-            t_us,
-            dt_us: u32::try_from(dt_us).unwrap_or(u32::MAX),
-            dtheta_nrad: nrad,
-            dv_umps: umps,
-            frames: u16::try_from(inc.frames).unwrap_or(u16::MAX),
-            bridged: u16::try_from(inc.bridged).unwrap_or(u16::MAX),
-            clipped: core::mem::take(&mut self.nav_clipped),
-        };
+        let report = self
+            .nav
+            .report(seq, end, self.config.fpga_base_rate_millihz);
         self.push(Output::Telemetry(Telemetry::Nav(report)));
     }
 
@@ -1060,6 +916,12 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         Ok(())
     }
 }
+
+mod averager;
+mod nav_stage;
+
+use averager::Averager;
+use nav_stage::NavStage;
 
 // The golden stream test is in `tests/acceptance/golden.rs`.
 #[cfg(test)]

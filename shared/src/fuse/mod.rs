@@ -140,6 +140,22 @@ pub struct HealthMask {
 }
 
 impl HealthMask {
+    /// No fault (usable in `const`).
+    pub const NONE: Self = Self {
+        gyro: SensorFaults {
+            saturated: 0,
+            stuck: 0,
+            outlier: 0,
+        },
+        accel: SensorFaults {
+            saturated: 0,
+            stuck: 0,
+            outlier: 0,
+        },
+    };
+}
+
+impl HealthMask {
     /// Accumulates another sample's health.
     pub fn merge(&mut self, other: &Self) {
         self.gyro.merge(&other.gyro);

@@ -1,6 +1,6 @@
 use super::*;
 use crate::calib::{AZ, board};
-use crate::telemetry::{CAL_CHUNK_MAX, PROTOCOL_VERSION, encode};
+use crate::telemetry::{CAL_CHUNK_MAX, FusedReport, NavReport, PROTOCOL_VERSION, encode};
 use crate::testutil::{Rng, rms};
 use crate::wire::FrameRepr;
 use crate::wire::clock::FPGA_BASE_RATE_MILLIHZ;
