@@ -46,9 +46,6 @@ pub const OUTBOX_LEN: usize = 16;
 /// Most outputs one frame can produce (fused, navigation, health, time and PPS reports); `push_link` keeps this much
 /// room.
 const OUTPUTS_PER_FRAME: usize = 5;
-/// A PPS edge is accepted only within this distance of a whole second of the current spacecraft time: it absorbs
-/// the `SetTime` latency (the first edge) and the frame clock's drift over a second, and refuses glitches.
-pub const PPS_TOLERANCE_US: u64 = 100_000;
 /// Longest accepted calibration upload (an encoded 16-group table).
 pub const CAL_UPLOAD_MAX: usize = encoded_len_max(GROUPS);
 /// Longest output interval, frames.
@@ -217,17 +214,9 @@ pub struct Pipeline<B> {
     last_arrival_us: Option<u64>,
     time_gaps: u32,
     mode: Mode,
-    /// Frame time of the last frame, µs.
-    last_t_us: Option<u64>,
+    /// Frame time and spacecraft time.
+    time: TimeSync,
     nav: NavStage,
-    /// Spacecraft time minus frame time, µs (wrapping), once `SetTime` was received.
-    time_epoch_us: Option<u64>,
-    /// Smallest arrival time minus frame time, µs, since the last accepted PPS edge: the frame clock in the arrival
-    /// clock's scale, read at the frames that waited least (a read's last frame).
-    arrival_lead_us: Option<i64>,
-    /// Arrival time of the last accepted PPS edge.
-    pps_last_us: Option<u64>,
-    pps: PpsReport,
     invalid_frames: u32,
     telemetry_dropped: u32,
     commands: [u32; 2],
@@ -283,15 +272,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             last_arrival_us: None,
             time_gaps: 0,
             mode: Mode::Stream,
-            last_t_us: None,
-            time_epoch_us: None,
-            arrival_lead_us: None,
-            pps_last_us: None,
-            pps: PpsReport {
-                accepted: 0,
-                rejected: 0,
-                last_correction_us: 0,
-            },
+            time: TimeSync::NEW,
             nav: NavStage::NEW,
             invalid_frames: 0,
             telemetry_dropped: 0,
@@ -679,15 +660,10 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             .0
             .push_parts(self.scratch.axes.as_flattened(), &self.fused_hold);
 
-        self.last_t_us = Some(t_us);
-        if let Some(arrival) = self.arrival_us {
-            // Both < 2⁶³ µs in practice; wrapping keeps the difference exact modulo 2⁶⁴ either way.
-            let lead = arrival.wrapping_sub(t_us) as i64;
-            self.arrival_lead_us = Some(self.arrival_lead_us.map_or(lead, |m| m.min(lead)));
-        }
+        self.time.frame(t_us, self.arrival_us);
         self.avg.add(&self.last, head.temp_cdeg, t_us);
         if self.avg.frames >= self.config.frames_per_output.max(1) {
-            let report = self.avg.report(self.out_seq, self.time_epoch_us);
+            let report = self.avg.report(self.out_seq, self.time.epoch_us());
             self.out_seq = self.out_seq.wrapping_add(1);
             self.avg = Averager::NEW;
             self.push(Output::Telemetry(Telemetry::Fused(report)));
@@ -732,79 +708,32 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         if let Some(r) = self.time_report() {
             self.push(Output::Telemetry(Telemetry::Time(r)));
         }
-        if self.pps.accepted > 0 || self.pps.rejected > 0 {
-            self.push(Output::Telemetry(Telemetry::Pps(self.pps)));
+        if let Some(pps) = self.time.pps_seen() {
+            self.push(Output::Telemetry(Telemetry::Pps(pps)));
         }
     }
 
-    /// A PPS edge at `edge_us` on the arrival clock ([`Self::set_arrival_us`]'s): the spacecraft's whole second.
-    /// The frame time at the edge is `edge_us` minus the smallest arrival lead of the frames since the last accepted
-    /// edge (frames are stamped when read, never before they exist, so the least-delayed one is the best measure of
-    /// the clocks' offset); if the spacecraft time there is within [`PPS_TOLERANCE_US`] of a whole second, the time
-    /// is re-anchored on that second. Returns the correction, µs; `None` if the edge was refused (counted).
+    /// A PPS edge at `edge_us` on the arrival clock ([`Self::set_arrival_us`]'s): the spacecraft's whole second
+    /// (see [`TimeSync::pps`]). Returns the correction, µs; `None` if the edge was refused (counted).
     pub fn pps(&mut self, edge_us: u64) -> Option<i64> {
-        let accepted = self.pps_correction(edge_us);
-        match accepted {
-            Some((epoch, correction)) => {
-                self.time_epoch_us = Some(epoch);
-                self.arrival_lead_us = None;
-                self.pps_last_us = Some(edge_us);
-                self.pps.accepted = self.pps.accepted.wrapping_add(1);
-                self.pps.last_correction_us = crate::calib::saturate_i32(correction);
-                Some(correction)
-            }
-            None => {
-                self.pps.rejected = self.pps.rejected.wrapping_add(1);
-                None
-            }
-        }
-    }
-
-    /// The new epoch and the correction for an edge at `edge_us`, if it is accepted (see [`Self::pps`]).
-    fn pps_correction(&self, edge_us: u64) -> Option<(u64, i64)> {
-        const SECOND_US: u64 = 1_000_000;
-        let (epoch, lead) = (self.time_epoch_us?, self.arrival_lead_us?);
-        if self
-            .pps_last_us
-            .is_some_and(|last| edge_us.wrapping_sub(last) < SECOND_US / 2)
-        {
-            return None;
-        }
-        // Wrapping: every quantity is a time in µs modulo 2⁶⁴ (the epoch is a difference of two such times).
-        let frame_us = edge_us.wrapping_sub(lead as u64);
-        let spacecraft_us = frame_us.wrapping_add(epoch);
-        // The nearest whole second (spacecraft_us < 2⁶³ for any date: no wrap).
-        let rounded = spacecraft_us.saturating_add(SECOND_US / 2);
-        let second = rounded.wrapping_sub(rounded % SECOND_US);
-        // `second` is within a second of `spacecraft_us`: the wrapped difference read as i64 is the signed correction.
-        let correction = second.wrapping_sub(spacecraft_us) as i64;
-        if correction.unsigned_abs() > PPS_TOLERANCE_US {
-            return None;
-        }
-        Some((second.wrapping_sub(frame_us), correction))
+        self.time.pps(edge_us)
     }
 
     /// The PPS discipline's counters.
     pub fn pps_report(&self) -> PpsReport {
-        self.pps
+        self.time.pps_report()
     }
 
     /// The correlation of frame time and spacecraft time, once `SetTime` was received.
     pub fn time_report(&self) -> Option<TimeReport> {
-        let (t_us, epoch) = (self.last_t_us.unwrap_or(0), self.time_epoch_us?);
-        Some(TimeReport {
-            t_us,
-            unix_us: t_us.wrapping_add(epoch),
-        })
+        self.time.report()
     }
 
     fn execute(&mut self, cmd: Command) -> Result<(), Reject> {
         match cmd {
             Command::Ping => {}
             Command::SetTime { unix_us } => {
-                // "Now" is the last frame's time: the command is handled between reads, within one read of the
-                // newest frame (≈ 7 ms), plus the bus's latency; PPS edges (`Self::pps`) then refine it.
-                self.time_epoch_us = Some(unix_us.wrapping_sub(self.last_t_us.unwrap_or(0)));
+                self.time.set_time(unix_us);
                 self.push_time();
             }
             Command::SetDecimation(n) => {
@@ -919,9 +848,12 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 
 mod averager;
 mod nav_stage;
+mod time_sync;
 
 use averager::Averager;
 use nav_stage::NavStage;
+pub use time_sync::PPS_TOLERANCE_US;
+use time_sync::TimeSync;
 
 // The golden stream test is in `tests/acceptance/golden.rs`.
 #[cfg(test)]
