@@ -23,7 +23,6 @@
 use crate::allan::{AllanSet, LEVELS};
 use crate::calib::thermal::ThermalComp;
 use crate::calib::{AXES, CalibrationTable, RawCounts, encoded_len_max};
-use crate::crc::crc32c;
 use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, FusionMode, HealthMask};
 use crate::telemetry::{
     Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, HealthReport,
@@ -98,24 +97,6 @@ impl PipelineConfig {
     }
 }
 
-/// The table's own CRC-32C, the last word of its encoding (`None` if it does not encode). Not the CRC of the whole
-/// encoding: a CRC over data followed by their CRC is a constant (the CRC's residue) and would never change.
-fn table_crc(table: &CalibrationTable<GROUPS>) -> Option<u32> {
-    let mut buf = [0u8; CAL_UPLOAD_MAX];
-    let bytes = table.encode(&mut buf).ok()?;
-    bytes.last_chunk::<4>().map(|c| u32::from_le_bytes(*c))
-}
-
-/// What the calibration in force is checked against ([`Pipeline::calibration_intact`]).
-#[derive(Clone, Copy, Debug)]
-enum CalCheck {
-    /// The factory table, in force since the pipeline was built (a `const` constructor cannot encode it to take
-    /// its CRC): compared with the factory table's CRC, taken when asked.
-    Factory,
-    /// The CRC-32C taken when the table was loaded (`None`: it did not encode, and the check fails).
-    Loaded(Option<u32>),
-}
-
 /// Something the platform must do. (Dumps come from [`Pipeline::poll_dump`].)
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Output {
@@ -144,15 +125,6 @@ struct FrameHead {
 struct FrameScratch {
     raw: [RawCounts; GROUPS],
     axes: [[i32; AXES]; GROUPS],
-}
-
-#[derive(Clone, Copy, Debug)]
-struct Upload {
-    buf: [u8; CAL_UPLOAD_MAX],
-    len: u16,
-    crc: u32,
-    received: u16,
-    active: bool,
 }
 
 /// Lazily generated reports (so that a dump never needs a large buffer).
@@ -187,10 +159,8 @@ impl Default for AllanBank {
 pub struct Pipeline<B> {
     config: PipelineConfig,
     decoder: FrameDecoder,
-    cal: CalibrationTable<GROUPS>,
-    cal_source: CalSource,
-    /// The raw-channel biases in force at the frames' temperature.
-    thermal: ThermalComp<GROUPS>,
+    /// The table in force, its thermal compensation and the upload of the next.
+    cal: Calibration,
     fusion: Fusion<GROUPS>,
     allan: B,
     fused_hold: [i32; AXES],
@@ -206,10 +176,7 @@ pub struct Pipeline<B> {
     outputs_since_health: u16,
     outbox: heapless::Deque<Output, OUTBOX_LEN>,
     cursor: Cursor,
-    upload: Upload,
     uptime_ms: u64,
-    /// What the table in force is checked against.
-    cal_check: CalCheck,
     arrival_us: Option<u64>,
     last_arrival_us: Option<u64>,
     time_gaps: u32,
@@ -233,9 +200,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         Self {
             config,
             decoder: FrameDecoder::new(),
-            cal: CalibrationTable::factory(),
-            cal_source: CalSource::Factory,
-            thermal: ThermalComp::new(),
+            cal: Calibration::NEW,
             fusion: Fusion::new(config.fusion),
             allan: bank,
             fused_hold: [0; AXES],
@@ -259,15 +224,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 allan: None,
                 faults: None,
             },
-            upload: Upload {
-                buf: [0; CAL_UPLOAD_MAX],
-                len: 0,
-                crc: 0,
-                received: 0,
-                active: false,
-            },
             uptime_ms: 0,
-            cal_check: CalCheck::Factory,
             arrival_us: None,
             last_arrival_us: None,
             time_gaps: 0,
@@ -283,7 +240,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// Puts a calibration in force (restarting the statistics that depend on it). Everything is reset in place and
     /// the table copied from `table`: no second pipeline state is built on the stack (`docs/firmware.md`, stack).
     pub fn load_calibration(&mut self, table: &CalibrationTable<GROUPS>, source: CalSource) {
-        self.cal.clone_from(table);
+        self.cal.table.clone_from(table);
         self.calibration_changed(source);
     }
 
@@ -293,19 +250,16 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         &mut self,
         fill: impl FnOnce(&mut CalibrationTable<GROUPS>) -> CalSource,
     ) {
-        let source = fill(&mut self.cal);
+        let source = fill(&mut self.cal.table);
         self.calibration_changed(source);
     }
 
-    /// The table in `self.cal` was replaced: its checksum, thermal biases and weights, and a restart of the
-    /// statistics that depend on it.
+    /// The table in force was replaced: its checksum, thermal biases and weights, and a restart of the statistics
+    /// that depend on it.
     fn calibration_changed(&mut self, source: CalSource) {
-        let table = &self.cal;
-        self.cal_check = CalCheck::Loaded(table_crc(table));
-        self.cal_source = source;
-        self.thermal.load(table);
+        self.cal.changed(source);
         // A table with fixed weights puts them in force; one without ends their use.
-        let mode = match (table.has_weights(), self.fusion.config().mode) {
+        let mode = match (self.cal.table.has_weights(), self.fusion.config().mode) {
             (true, _) => FusionMode::Fixed,
             (false, FusionMode::Fixed) => FusionConfig::DEFAULT.mode,
             (false, mode) => mode,
@@ -322,32 +276,26 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// encoding) against the one taken when it was loaded. The F405's SRAM has no ECC; the firmware checks this periodically and
     /// reloads the table from flash when it fails.
     pub fn calibration_intact(&self) -> bool {
-        let expected = match self.cal_check {
-            CalCheck::Factory => table_crc(&CalibrationTable::factory()),
-            CalCheck::Loaded(crc) => crc,
-        };
-        expected.is_some()
-            && table_crc(&self.cal) == expected
-            && self.thermal.consistent_with(&self.cal)
+        self.cal.intact()
     }
 
     /// Flips bit `bit % 32` of group `group % GROUPS`'s first gyro bias in the calibration held in RAM, as a
     /// radiation upset would, without updating its CRC (feature `fault-injection`: tests only).
     #[cfg(any(test, feature = "fault-injection"))]
     pub fn inject_calibration_bit_flip(&mut self, group: usize, bit: u32) {
-        if let Some(g) = self.cal.groups.get_mut(group % GROUPS) {
+        if let Some(g) = self.cal.table.groups.get_mut(group % GROUPS) {
             g.gyro_bias_q12[0] ^= 1i32.wrapping_shl(bit % 32);
         }
     }
 
     /// The calibration in force.
     pub fn calibration(&self) -> &CalibrationTable<GROUPS> {
-        &self.cal
+        &self.cal.table
     }
 
     /// Where the calibration in force came from.
     pub fn calibration_source(&self) -> CalSource {
-        self.cal_source
+        self.cal.source
     }
 
     /// Link statistics.
@@ -419,7 +367,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 
     /// The thermal compensation's state (biases in force, temperature counts).
     pub fn thermal(&self) -> &ThermalComp<GROUPS> {
-        &self.thermal
+        &self.cal.thermal
     }
 
     /// The fusion state (noise estimates, weights, fault counts).
@@ -547,8 +495,8 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         HealthReport {
             uptime_ms: self.uptime_ms,
             link: *self.decoder.counters(),
-            cal_id: self.cal.cal_id,
-            cal_source: self.cal_source,
+            cal_id: self.cal.table.cal_id,
+            cal_source: self.cal.source,
             decimation: self.clock.decimation(),
             frames_per_output: self.config.frames_per_output,
             fusion: fusion.mode,
@@ -558,8 +506,8 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             allan_samples: self.allan.borrow().0.samples(),
             telemetry_dropped: self.telemetry_dropped,
             commands: self.commands,
-            temp: self.thermal.counts(),
-            thermal_at_cdeg: self.thermal.applied_cdeg(),
+            temp: self.cal.thermal.counts(),
+            thermal_at_cdeg: self.cal.thermal.applied_cdeg(),
         }
     }
 
@@ -633,13 +581,15 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         // Loops into initialised arrays, not `array::map`: on the M4 (opt-level "s") the map's staging copies cost
         // 3.0 k instructions per frame, the loop 0.8 k (`mcu-bench`); at opt-level 2 `from_fn` and `each_ref().map`
         // still cost 0.4–0.7 k more than the loops.
-        self.thermal.update(&self.cal, head.temp_cdeg);
+        let cal = &mut self.cal;
+        cal.thermal.update(&cal.table, head.temp_cdeg);
         let FrameScratch { raw, axes } = &mut self.scratch;
-        for ((out, r), cal) in axes.iter_mut().zip(raw.iter()).zip(self.thermal.groups()) {
-            *out = cal.apply(r);
+        for ((out, r), group) in axes.iter_mut().zip(raw.iter()).zip(cal.thermal.groups()) {
+            *out = group.apply(r);
         }
         // Fused straight into `last` (read below, and by `last_fused`).
-        self.fusion.fuse_into(raw, axes, &self.cal, &mut self.last);
+        self.fusion
+            .fuse_into(raw, axes, &self.cal.table, &mut self.last);
         if self.config.nav {
             self.integrate(head.decimation, missing, tick.base_ticks);
         }
@@ -768,7 +718,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 });
             }
             Command::SetFusion { mode, robust } => {
-                if mode == FusionMode::Fixed && !self.cal.has_weights() {
+                if mode == FusionMode::Fixed && !self.cal.table.has_weights() {
                     return Err(Reject::BadArgument);
                 }
                 self.fusion.set_config(FusionConfig {
@@ -777,51 +727,10 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                     ..*self.fusion.config()
                 });
             }
-            Command::CalBegin { len, crc } => {
-                if len == 0 || usize::from(len) > CAL_UPLOAD_MAX {
-                    return Err(Reject::BadArgument);
-                }
-                self.upload = Upload {
-                    len,
-                    crc,
-                    received: 0,
-                    active: true,
-                    ..self.upload
-                };
-            }
-            Command::CalChunk { offset, data } => {
-                let u = &mut self.upload;
-                if !u.active {
-                    return Err(Reject::CalNotStarted);
-                }
-                if offset != u.received {
-                    return Err(Reject::CalOffset(u.received));
-                }
-                let end = usize::from(offset)
-                    .checked_add(data.len())
-                    .filter(|&end| end <= usize::from(u.len))
-                    .ok_or(Reject::CalOverflow)?;
-                u.buf
-                    .get_mut(usize::from(offset)..end)
-                    .ok_or(Reject::CalOverflow)?
-                    .copy_from_slice(&data);
-                u.received = end as u16;
-            }
+            Command::CalBegin { len, crc } => self.cal.begin(len, crc)?,
+            Command::CalChunk { offset, data } => self.cal.chunk(offset, &data)?,
             Command::CalCommit => {
-                let u = &self.upload;
-                if !u.active {
-                    return Err(Reject::CalNotStarted);
-                }
-                let bytes = u
-                    .buf
-                    .get(..usize::from(u.len))
-                    .ok_or(Reject::CalIncomplete)?;
-                if u.received != u.len || crc32c(bytes) != u.crc {
-                    return Err(Reject::CalIncomplete);
-                }
-                // In place (no table-sized temporary on the bus task's stack); on error the table in force stays.
-                self.cal.decode_into(bytes).map_err(Reject::Cal)?;
-                self.upload.active = false;
+                self.cal.commit()?;
                 self.calibration_changed(CalSource::Uploaded);
             }
             Command::AllanRequest { first, count } => {
@@ -847,10 +756,12 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 }
 
 mod averager;
+mod calibration;
 mod nav_stage;
 mod time_sync;
 
 use averager::Averager;
+use calibration::Calibration;
 use nav_stage::NavStage;
 pub use time_sync::PPS_TOLERANCE_US;
 use time_sync::TimeSync;

@@ -1,5 +1,6 @@
 use super::*;
 use crate::calib::{AZ, board};
+use crate::crc::crc32c;
 use crate::telemetry::{CAL_CHUNK_MAX, FusedReport, NavReport, PROTOCOL_VERSION, encode};
 use crate::testutil::{Rng, rms};
 use crate::wire::FrameRepr;
