@@ -33,7 +33,8 @@ mod report;
 pub use biases::{BiasMethod, BiasOptions, BiasUpdate, reestimate_biases};
 pub use detect::{DetectOptions, StaticInterval, detect_static};
 pub use file::{
-    CALIBRATION_FORMAT, CalibrationFile, CalibrationMetadata, GroupCalF64, ImuMetadata,
+    CALIBRATION_FORMAT, CalibrationFile, CalibrationMetadata, GroupCalF64, GroupThermalF64,
+    ImuMetadata, ThermalChannelFits, ThermalFitMetadata,
     read_calibration, read_calibration_any, write_calibration,
 };
 pub use fit::{
