@@ -660,10 +660,10 @@ mod tests {
         assert_eq!(temp[(hours * 3600.0) as usize], 5000);
         assert_eq!(*temp.last().unwrap(), 5000);
         let (a, b) = (0, (hours * 3600.0) as usize);
-        for g in 0..16 {
-            for c in 0..7 {
+        for (g, kg) in k.iter().enumerate() {
+            for (c, kc) in kg.iter().enumerate() {
                 let moved = f64::from(frames[b].raw[g][c]) - f64::from(frames[a].raw[g][c]);
-                let expect = k[g][c] * 60.0;
+                let expect = kc * 60.0;
                 assert!(
                     (moved - expect).abs() <= 1.0,
                     "group {g} channel {c}: {moved} counts, expected {expect}"
