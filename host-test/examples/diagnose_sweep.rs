@@ -28,6 +28,8 @@ fn main() {
         drift_c_per_h: 0.15,
         coef,
         coef_sd: sd,
+        ref_c: None,
+        hold_after_s: None,
     };
     let mut cases: Vec<(&str, SimConfig)> = Vec::new();
     cases.push(("none", base(seed)));

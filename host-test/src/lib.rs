@@ -22,4 +22,5 @@ pub mod sim;
 pub mod simcli;
 pub mod stats;
 pub mod testrng;
+pub mod thermal_check;
 pub mod twin;

@@ -88,6 +88,168 @@ fn nums(s: &str, what: &str, n: std::ops::RangeInclusive<usize>) -> Result<Vec<f
     Ok(v)
 }
 
+/// Temperature at which a simulated part's thermal bias term is zero, °C (the board's bias law does not depend on
+/// the temperature profile of a record, so that records of one board under different profiles agree).
+pub const PART_REF_C: f64 = 20.0;
+
+/// The board temperature and thermal coefficients before any `--thermal` / `--temperature`: no coefficient, 20 °C
+/// ± 2 °C over 2 h plus 1 °C/h.
+const DEFAULT_THERMAL: Thermal = Thermal {
+    mean_c: PART_REF_C,
+    amplitude_c: 2.0,
+    period_s: 7200.0,
+    phase_rad: 0.0,
+    drift_c_per_h: 1.0,
+    coef: [0.0; 6],
+    coef_sd: [0.0; 6],
+    ref_c: Some(PART_REF_C),
+    hold_after_s: None,
+};
+
+/// A board temperature profile of `--temperature`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TemperatureProfile {
+    /// An orbit's cycle: `mean_c + amp_c·sin(2πt / period)`.
+    Orbit {
+        /// Mean, °C.
+        mean_c: f64,
+        /// Amplitude, °C (≥ 0).
+        amp_c: f64,
+        /// Period, minutes (> 0).
+        period_min: f64,
+    },
+    /// A linear ramp from `from_c` to `to_c` over `hours`, then held at `to_c`.
+    Ramp {
+        /// Start, °C.
+        from_c: f64,
+        /// End, °C.
+        to_c: f64,
+        /// Duration of the ramp, hours (> 0).
+        hours: f64,
+    },
+    /// A constant temperature, °C.
+    Constant {
+        /// The temperature, °C.
+        c: f64,
+    },
+}
+
+impl TemperatureProfile {
+    /// Sets `t`'s profile (its coefficients and reference temperature are kept).
+    pub fn apply(self, t: &mut Thermal) {
+        let (mean_c, amplitude_c, period_s, drift_c_per_h, hold_after_s) = match self {
+            Self::Orbit {
+                mean_c,
+                amp_c,
+                period_min,
+            } => (mean_c, amp_c, period_min * 60.0, 0.0, None),
+            Self::Ramp {
+                from_c,
+                to_c,
+                hours,
+            } => (
+                from_c,
+                0.0,
+                3600.0,
+                (to_c - from_c) / hours,
+                Some(hours * 3600.0),
+            ),
+            Self::Constant { c } => (c, 0.0, 3600.0, 0.0, None),
+        };
+        (t.mean_c, t.amplitude_c, t.period_s, t.phase_rad) = (mean_c, amplitude_c, period_s, 0.0);
+        (t.drift_c_per_h, t.hold_after_s) = (drift_c_per_h, hold_after_s);
+    }
+}
+
+/// Parses a `--temperature` profile: `orbit:mean_c=M,amp_c=A,period_min=P`, `ramp:from_c=A,to_c=B,hours=H` or
+/// `constant:c=C` (every key once, none other; temperatures within ±150 °C).
+pub fn parse_temperature(s: &str) -> Result<TemperatureProfile> {
+    const FORMS: &str =
+        "orbit:mean_c=M,amp_c=A,period_min=P, ramp:from_c=A,to_c=B,hours=H or constant:c=C";
+    let (kind, rest) = s
+        .split_once(':')
+        .with_context(|| format!("--temperature '{s}': expected {FORMS}"))?;
+    let keys: &[&str] = match kind {
+        "orbit" => &["mean_c", "amp_c", "period_min"],
+        "ramp" => &["from_c", "to_c", "hours"],
+        "constant" => &["c"],
+        _ => bail!("--temperature '{s}': unknown profile '{kind}' (expected {FORMS})"),
+    };
+    let mut vals = vec![None; keys.len()];
+    for kv in rest.split(',') {
+        let (k, v) = kv
+            .split_once('=')
+            .with_context(|| format!("--temperature '{s}': '{kv}' is not KEY=VALUE"))?;
+        let i = keys.iter().position(|x| *x == k.trim()).with_context(|| {
+            format!(
+                "--temperature '{s}': unknown key '{k}' for {kind} (keys: {})",
+                keys.join(", ")
+            )
+        })?;
+        let x: f64 = v
+            .trim()
+            .parse()
+            .with_context(|| format!("--temperature '{s}': {k} = '{v}' is not a number"))?;
+        if !x.is_finite() {
+            bail!("--temperature '{s}': {k} must be finite");
+        }
+        if vals[i].replace(x).is_some() {
+            bail!("--temperature '{s}': {k} given twice");
+        }
+    }
+    let mut v = [0.0; 3];
+    for ((slot, val), k) in v.iter_mut().zip(&vals).zip(keys) {
+        *slot =
+            val.with_context(|| format!("--temperature '{s}': {k} missing (expected {FORMS})"))?;
+    }
+    let temp_ok = |x: f64| (-150.0..=150.0).contains(&x);
+    let p = match kind {
+        "orbit" => TemperatureProfile::Orbit {
+            mean_c: v[0],
+            amp_c: v[1],
+            period_min: v[2],
+        },
+        "ramp" => TemperatureProfile::Ramp {
+            from_c: v[0],
+            to_c: v[1],
+            hours: v[2],
+        },
+        _ => TemperatureProfile::Constant { c: v[0] },
+    };
+    match p {
+        TemperatureProfile::Orbit {
+            mean_c,
+            amp_c,
+            period_min,
+        } => {
+            if amp_c < 0.0 || period_min <= 0.0 {
+                bail!("--temperature '{s}': amp_c must be ≥ 0 and period_min > 0");
+            }
+            if !temp_ok(mean_c - amp_c) || !temp_ok(mean_c + amp_c) {
+                bail!("--temperature '{s}': the cycle leaves −150 … 150 °C");
+            }
+        }
+        TemperatureProfile::Ramp {
+            from_c,
+            to_c,
+            hours,
+        } => {
+            if hours <= 0.0 {
+                bail!("--temperature '{s}': hours must be > 0");
+            }
+            if !temp_ok(from_c) || !temp_ok(to_c) {
+                bail!("--temperature '{s}': from_c and to_c must be within −150 … 150 °C");
+            }
+        }
+        TemperatureProfile::Constant { c } => {
+            if !temp_ok(c) {
+                bail!("--temperature '{s}': c must be within −150 … 150 °C");
+            }
+        }
+    }
+    Ok(p)
+}
+
 /// The effect flags of `ground simulate`.
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct EffectArgs {
@@ -100,9 +262,15 @@ pub struct EffectArgs {
     /// Shared slow drift (random walk of the bias) of all groups: AXES:K (K in (°/s)/√s or g/√s).
     #[arg(long)]
     pub drift: Vec<String>,
-    /// Temperature-driven bias: AXES:COEF[:SD] per °C ((°/s)/°C or g/°C); board temperature 20 °C ± 2 °C over 2 h plus 1 °C/h.
+    /// Temperature-driven bias of each raw channel: AXES:COEF[:SD], COEF in (°/s)/°C or g/°C, SD the spread between
+    /// parts (repeatable: gyro and accel together); zero at 20 °C; board temperature from --temperature, else
+    /// 20 °C ± 2 °C over 2 h plus 1 °C/h.
     #[arg(long)]
     pub thermal: Vec<String>,
+    /// Board temperature profile (frames carry it): `orbit:mean_c=M,amp_c=A,period_min=P` (a sinusoid),
+    /// `ramp:from_c=A,to_c=B,hours=H` (linear, then held at B) or `constant:c=C`.
+    #[arg(long, value_parser = parse_temperature)]
+    pub temperature: Option<TemperatureProfile>,
     /// A bad sensor: GROUP:CHANNEL:NOISE_FACTOR[:STEP:STEP_AT_S] (channels gx gy gaz gbz ax ay az).
     #[arg(long)]
     pub outlier: Vec<String>,
@@ -121,6 +289,7 @@ impl EffectArgs {
             && self.block.is_empty()
             && self.drift.is_empty()
             && self.thermal.is_empty()
+            && self.temperature.is_none()
             && self.outlier.is_empty()
             && self.unequal == 0.0
             && !self.cal_spread)
@@ -167,19 +336,14 @@ impl EffectArgs {
         for s in &self.thermal {
             let (axes, rest) = s.split_once(':').context("--thermal AXES:COEF[:SD]")?;
             let v = nums(rest, "--thermal", 1..=2)?;
-            let t = cfg.thermal.get_or_insert(Thermal {
-                mean_c: 20.0,
-                amplitude_c: 2.0,
-                period_s: 7200.0,
-                phase_rad: 0.0,
-                drift_c_per_h: 1.0,
-                coef: [0.0; 6],
-                coef_sd: [0.0; 6],
-            });
+            let t = cfg.thermal.get_or_insert(DEFAULT_THERMAL);
             for a in parse_axes(axes)? {
                 t.coef[a.index()] = v[0];
                 t.coef_sd[a.index()] = v.get(1).copied().unwrap_or(0.0);
             }
+        }
+        if let Some(p) = self.temperature {
+            p.apply(cfg.thermal.get_or_insert(DEFAULT_THERMAL));
         }
         for s in &self.outlier {
             let parts: Vec<&str> = s.split(':').collect();
@@ -420,4 +584,91 @@ pub fn recording(cfg: SimConfig) -> Result<crate::formats::Recording> {
         sink.push(&chunk);
     }
     Ok(sink.finish())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::NoiseParams;
+
+    #[test]
+    fn temperature_profiles_parse_and_bad_ones_are_refused() {
+        assert_eq!(
+            parse_temperature("orbit:mean_c=20,amp_c=8,period_min=95").unwrap(),
+            TemperatureProfile::Orbit {
+                mean_c: 20.0,
+                amp_c: 8.0,
+                period_min: 95.0
+            }
+        );
+        assert_eq!(
+            parse_temperature("ramp:from_c=-10,to_c=50,hours=3").unwrap(),
+            TemperatureProfile::Ramp {
+                from_c: -10.0,
+                to_c: 50.0,
+                hours: 3.0
+            }
+        );
+        assert_eq!(
+            parse_temperature("constant:c=20").unwrap(),
+            TemperatureProfile::Constant { c: 20.0 }
+        );
+        for (bad, says) in [
+            ("orbit:mean_c=20,amp_c=8", "period_min missing"),
+            ("orbit:mean_c=20,amp_c=8,period_min=0", "period_min > 0"),
+            ("ramp:from_c=-10,to_c=50,hours=3,x=1", "unknown key 'x'"),
+            ("ramp:from_c=-10,to_c=abc,hours=3", "is not a number"),
+            ("ramp:from_c=-10,from_c=0,to_c=5,hours=3", "given twice"),
+            ("sine:mean_c=20", "unknown profile 'sine'"),
+            ("ramp", "expected orbit:"),
+            ("constant:c=500", "within −150"),
+        ] {
+            let e = parse_temperature(bad).unwrap_err().to_string();
+            assert!(e.contains(says), "{bad}: {e}");
+        }
+    }
+
+    /// A noiseless board on a ramp: every frame carries the temperature, the ramp holds at its end, and each raw
+    /// channel's code moves by its own coefficient (the reading's, through the ADC step of `shared::calib::board`)
+    /// times the temperature change: the per-raw-channel linear law is the truth.
+    #[test]
+    fn thermal_acts_on_each_raw_channel_code() {
+        let (rate, hours) = (1.0, 3.0);
+        let samples = (hours * 3600.0 * rate) as u64 + 600;
+        let mut cfg = SimConfig::new(1, rate, samples, [NoiseParams::default(); 7]);
+        cfg.board_seed = Some(7);
+        let args = EffectArgs {
+            thermal: vec!["gyro:0.05:0.02".into(), "accel:0.0005:0.0002".into()],
+            temperature: Some(parse_temperature("ramp:from_c=-10,to_c=50,hours=3").unwrap()),
+            ..EffectArgs::default()
+        };
+        args.apply(&mut cfg).unwrap();
+        let mut sim = Simulator::new(cfg).unwrap();
+        let coef = |g, ch: Channel| sim.thermal_coef(g, ch).unwrap() / ch.adc_step();
+        let k: Vec<[f64; 7]> = (0..16)
+            .map(|g| Channel::ALL.map(|ch| coef(g, ch)))
+            .collect();
+        // Per raw channel, not per axis: the two z gyros of a group differ.
+        assert!((0..16).all(|g| k[g][1] != k[g][3]));
+        let mut frames = Vec::new();
+        let mut chunk = Chunk::default();
+        while sim.next_chunk(&mut chunk) > 0 {
+            frames.extend((0..chunk.len).filter_map(|i| chunk.frame(i)));
+        }
+        let temp: Vec<i16> = frames.iter().map(|f| f.temp_cdeg.unwrap()).collect();
+        assert_eq!(temp[0], -1000);
+        assert_eq!(temp[(hours * 3600.0) as usize], 5000);
+        assert_eq!(*temp.last().unwrap(), 5000);
+        let (a, b) = (0, (hours * 3600.0) as usize);
+        for (g, kg) in k.iter().enumerate() {
+            for (c, kc) in kg.iter().enumerate() {
+                let moved = f64::from(frames[b].raw[g][c]) - f64::from(frames[a].raw[g][c]);
+                let expect = kc * 60.0;
+                assert!(
+                    (moved - expect).abs() <= 1.0,
+                    "group {g} channel {c}: {moved} counts, expected {expect}"
+                );
+            }
+        }
+    }
 }

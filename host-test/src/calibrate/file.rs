@@ -9,13 +9,18 @@
 //! Conversion to the table (Q19.12): gyro entries × 10⁶ (µ°/s per count), accelerometer entries × 10⁶ (µg per
 //! count), biases in counts, all × 2¹² and rounded to nearest; a value outside `i32` or a bias beyond ±65536
 //! counts is an [`CalibError::OutOfRange`].
+//!
+//! Thermal terms ([`GroupThermalF64`], about [`CalibrationFile::t_ref_c`]): linear coefficients in counts/°C go to
+//! counts per 0.01 °C × 2²⁸ (Q28), quadratic ones in counts/°C² to counts per (0.01 °C)² × 2⁴⁰ (Q40), the reference
+//! temperature to 0.01 °C (`i16`); fixed fusion weights × 2¹⁶ (Q16, |w| ≤ 1, a positive sum per axis). All rounded
+//! to nearest; anything that does not fit is an [`CalibError::OutOfRange`] naming the value.
 
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 use shared::calib::{
-    ACCEL_RAW, BIAS_LIMIT_Q12, CalError, CalibrationTable, FRAC_BITS, GYRO_RAW, GroupCal,
-    encoded_len_max,
+    ACCEL_RAW, AXES, BIAS_LIMIT_Q12, CalError, CalibrationTable, FRAC_BITS, GYRO_RAW, GroupCal,
+    GroupThermal, WEIGHT_LIMIT_Q16, encoded_len_max,
 };
 
 use super::fit::{BiasModel, StaticCalibration};
@@ -38,6 +43,46 @@ pub struct GroupCalF64 {
     pub accel_matrix_g_per_count: Mat3,
     /// Accelerometer bias, counts.
     pub accel_bias_counts: Vec3,
+}
+
+/// Temperature dependence of one group's raw-channel biases in physical units: the bias at board temperature `T`
+/// is `b + lin·(T − t_ref) + quad·(T − t_ref)²` counts (`CalibrationFile::t_ref_c`; table: `GroupThermal`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct GroupThermalF64 {
+    /// Linear coefficient per raw gyro channel (frame order A x, A z, B y, B z), counts/°C.
+    pub gyro_lin_counts_per_c: [f64; GYRO_RAW],
+    /// Quadratic coefficient per raw gyro channel, counts/°C².
+    pub gyro_quad_counts_per_c2: [f64; GYRO_RAW],
+    /// Linear coefficient per raw accelerometer channel (x, y, z), counts/°C.
+    pub accel_lin_counts_per_c: [f64; ACCEL_RAW],
+    /// Quadratic coefficient per raw accelerometer channel, counts/°C².
+    pub accel_quad_counts_per_c2: [f64; ACCEL_RAW],
+}
+
+/// Metadata of a thermal fit (`ground calibrate --thermal`): where it comes from and how well it is determined.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ThermalFitMetadata {
+    /// The record fitted (free text, e.g. its path).
+    pub source: String,
+    /// Lowest and highest board temperature of the record, °C.
+    pub temp_range_c: [f64; 2],
+    /// Samples fitted.
+    pub samples: usize,
+    /// Per group, per raw channel in frame order (4 gyro, 3 accelerometer).
+    pub groups: Vec<ThermalChannelFits>,
+}
+
+/// Per raw channel of a group (frame order): the fit's standard errors, residual RMS and intercept.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ThermalChannelFits {
+    /// Standard error of the linear coefficient, counts/°C.
+    pub lin_se_counts_per_c: [f64; 7],
+    /// Standard error of the quadratic coefficient, counts/°C².
+    pub quad_se_counts_per_c2: [f64; 7],
+    /// RMS of the residuals, counts.
+    pub residual_rms_counts: [f64; 7],
+    /// The fitted code at the reference temperature, counts (bias + the still board's true input).
+    pub intercept_counts: [f64; 7],
 }
 
 /// Metadata of one IMU of a static calibration.
@@ -89,6 +134,100 @@ pub struct CalibrationFile {
     /// Metadata (absent in files read from `.bin`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub metadata: Option<CalibrationMetadata>,
+    /// Board temperature at which the biases hold, °C (the reference of `thermal`; 0 when unknown).
+    #[serde(default)]
+    pub t_ref_c: f64,
+    /// Per-group thermal terms of the biases (`None`: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub thermal: Option<Vec<GroupThermalF64>>,
+    /// Fixed fusion weights per group and axis (gx gy gz ax ay az), each within ±1 (`None`: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weights: Option<Vec<[f64; AXES]>>,
+    /// How the thermal terms were fitted (absent in files read from `.bin`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub thermal_fit: Option<ThermalFitMetadata>,
+}
+
+/// `x · 2^bits` rounded to nearest as `i32`, or an [`CalibError::OutOfRange`] naming `what`.
+fn fixed(x: f64, bits: u32, what: &str, unit: &str) -> Result<i32, CalibError> {
+    let v = (x * f64::from(bits).exp2()).round();
+    if v.is_finite() && v >= f64::from(i32::MIN) && v <= f64::from(i32::MAX) {
+        Ok(v as i32)
+    } else {
+        Err(CalibError::OutOfRange(format!(
+            "{what} = {x} {unit} does not fit the table (Q{bits} in i32: |x| < {:.4} {unit})",
+            f64::from(i32::MAX) / f64::from(bits).exp2()
+        )))
+    }
+}
+
+impl GroupThermalF64 {
+    /// To the table's form (Q28 per 0.01 °C, Q40 per (0.01 °C)²).
+    pub fn to_fixed(&self) -> Result<GroupThermal, CalibError> {
+        let lin = |x: f64, what: &str| fixed(x / 100.0, 28, what, "counts per 0.01 °C");
+        let quad = |x: f64, what: &str| fixed(x / 1e4, 40, what, "counts per (0.01 °C)²");
+        let mut t = GroupThermal::ZERO;
+        for c in 0..GYRO_RAW {
+            t.gyro_lin_q28[c] = lin(self.gyro_lin_counts_per_c[c], "gyro thermal linear")?;
+            t.gyro_quad_q40[c] = quad(self.gyro_quad_counts_per_c2[c], "gyro thermal quadratic")?;
+        }
+        for c in 0..ACCEL_RAW {
+            t.accel_lin_q28[c] = lin(self.accel_lin_counts_per_c[c], "accel thermal linear")?;
+            t.accel_quad_q40[c] =
+                quad(self.accel_quad_counts_per_c2[c], "accel thermal quadratic")?;
+        }
+        Ok(t)
+    }
+
+    /// From the table's form.
+    pub fn from_fixed(t: &GroupThermal) -> Self {
+        let lin = |v: i32| f64::from(v) / 28f64.exp2() * 100.0;
+        let quad = |v: i32| f64::from(v) / 40f64.exp2() * 1e4;
+        Self {
+            gyro_lin_counts_per_c: t.gyro_lin_q28.map(lin),
+            gyro_quad_counts_per_c2: t.gyro_quad_q40.map(quad),
+            accel_lin_counts_per_c: t.accel_lin_q28.map(lin),
+            accel_quad_counts_per_c2: t.accel_quad_q40.map(quad),
+        }
+    }
+}
+
+/// The reference temperature in 0.01 °C, or an [`CalibError::OutOfRange`].
+fn t_ref_cdeg(t_ref_c: f64) -> Result<i16, CalibError> {
+    let v = (t_ref_c * 100.0).round();
+    if v.is_finite() && v >= f64::from(i16::MIN) && v <= f64::from(i16::MAX) {
+        Ok(v as i16)
+    } else {
+        Err(CalibError::OutOfRange(format!(
+            "reference temperature t_ref_c = {t_ref_c} °C does not fit the table (0.01 °C in i16: ±327.67 °C)"
+        )))
+    }
+}
+
+/// Weights in Q16, checked as the table's decoder checks them (|w| ≤ 1, a positive sum per axis).
+fn weights_q16(w: &[[f64; AXES]]) -> Result<Vec<[i32; AXES]>, CalibError> {
+    let mut out = Vec::with_capacity(w.len());
+    let mut sums = [0i64; AXES];
+    for (g, row) in w.iter().enumerate() {
+        let mut q = [0; AXES];
+        for (a, (&x, slot)) in row.iter().zip(&mut q).enumerate() {
+            *slot = fixed(x, 16, &format!("weight of group {g} axis {a}"), "")?;
+            if slot.unsigned_abs() > WEIGHT_LIMIT_Q16 as u32 {
+                return Err(CalibError::OutOfRange(format!(
+                    "weight of group {g} axis {a} = {x} is beyond ±1"
+                )));
+            }
+            sums[a] += i64::from(*slot);
+        }
+        out.push(q);
+    }
+    if let Some(a) = sums.iter().position(|&s| s <= 0) {
+        return Err(CalibError::OutOfRange(format!(
+            "the weights of axis {a} sum to {} (must be positive)",
+            sums[a] as f64 / 65536.0
+        )));
+    }
+    Ok(out)
 }
 
 fn q12(x: f64, what: &str) -> Result<i32, CalibError> {
@@ -151,6 +290,18 @@ impl GroupCalF64 {
     }
 }
 
+fn check_count(what: &'static str, expected: usize, found: usize) -> Result<(), CalibError> {
+    if expected == found {
+        Ok(())
+    } else {
+        Err(CalibError::Count {
+            what,
+            expected,
+            found,
+        })
+    }
+}
+
 fn format_err(path: &Path, message: impl ToString) -> CalibError {
     CalibError::Format {
         path: path.to_path_buf(),
@@ -168,20 +319,26 @@ impl CalibrationFile {
                 found: self.groups.len(),
             });
         }
-        let mut groups = [GroupCal::default(); G];
-        for (g, f) in groups.iter_mut().zip(&self.groups) {
+        let mut table = CalibrationTable::<G>::factory();
+        for (g, f) in table.groups.iter_mut().zip(&self.groups) {
             *g = f.to_q12()?;
         }
-        Ok(CalibrationTable {
-            cal_id: self.cal_id,
-            raw_min: self.raw_min,
-            raw_max: self.raw_max,
-            groups,
-            ..CalibrationTable::factory()
-        })
+        (table.cal_id, table.raw_min, table.raw_max) = (self.cal_id, self.raw_min, self.raw_max);
+        table.t_ref_cdeg = t_ref_cdeg(self.t_ref_c)?;
+        if let Some(th) = &self.thermal {
+            check_count("groups of the thermal terms", G, th.len())?;
+            for (t, f) in table.thermal.iter_mut().zip(th) {
+                *t = f.to_fixed()?;
+            }
+        }
+        if let Some(w) = &self.weights {
+            check_count("groups of the weights", G, w.len())?;
+            table.weights_q16.copy_from_slice(&weights_q16(w)?);
+        }
+        Ok(table)
     }
 
-    /// From a fixed-point table (no metadata).
+    /// From a fixed-point table (no metadata; thermal terms and weights when the table has them).
     pub fn from_table<const G: usize>(t: &CalibrationTable<G>) -> Self {
         Self {
             format: CALIBRATION_FORMAT.to_string(),
@@ -190,7 +347,35 @@ impl CalibrationFile {
             raw_max: t.raw_max,
             groups: t.groups.iter().map(GroupCalF64::from_q12).collect(),
             metadata: None,
+            t_ref_c: f64::from(t.t_ref_cdeg) / 100.0,
+            thermal: t
+                .has_thermal()
+                .then(|| t.thermal.iter().map(GroupThermalF64::from_fixed).collect()),
+            weights: t.has_weights().then(|| {
+                t.weights_q16
+                    .iter()
+                    .map(|w| w.map(|x| f64::from(x) / 65536.0))
+                    .collect()
+            }),
+            thermal_fit: None,
         }
+    }
+
+    /// Checks that the reference temperature, thermal terms and weights fit the table (whatever the group count).
+    fn check_extras(&self) -> Result<(), CalibError> {
+        t_ref_cdeg(self.t_ref_c)?;
+        let n = self.groups.len();
+        if let Some(th) = &self.thermal {
+            check_count("groups of the thermal terms", n, th.len())?;
+            for t in th {
+                t.to_fixed()?;
+            }
+        }
+        if let Some(w) = &self.weights {
+            check_count("groups of the weights", n, w.len())?;
+            weights_q16(w)?;
+        }
+        Ok(())
     }
 
     /// Pretty JSON.
@@ -288,7 +473,7 @@ fn check_file(path: &Path, file: &CalibrationFile) -> Result<(), CalibError> {
         g.to_q12()
             .map_err(|e| format_err(path, format!("group {i}: {e}")))?;
     }
-    Ok(())
+    file.check_extras().map_err(|e| format_err(path, e))
 }
 
 /// Reads a calibration of `G` groups from `.json`, `.toml` or `.bin` (by extension).
@@ -422,6 +607,10 @@ impl StaticCalibration {
                     })
                     .collect(),
             }),
+            t_ref_c: 0.0,
+            thermal: None,
+            weights: None,
+            thermal_fit: None,
         }
     }
 }

@@ -29,12 +29,14 @@ pub mod linalg;
 mod rate_table;
 mod records;
 mod report;
+mod thermal;
 
 pub use biases::{BiasMethod, BiasOptions, BiasUpdate, reestimate_biases};
 pub use detect::{DetectOptions, StaticInterval, detect_static};
 pub use file::{
-    CALIBRATION_FORMAT, CalibrationFile, CalibrationMetadata, GroupCalF64, ImuMetadata,
-    read_calibration, read_calibration_any, write_calibration,
+    CALIBRATION_FORMAT, CalibrationFile, CalibrationMetadata, GroupCalF64, GroupThermalF64,
+    ImuMetadata, ThermalChannelFits, ThermalFitMetadata, read_calibration, read_calibration_any,
+    write_calibration,
 };
 pub use fit::{
     BiasModel, ClusterAlignment, ClusterFit, ImuCal, MagnitudeFit, StaticCalOptions,
@@ -46,6 +48,7 @@ pub use rate_table::{
 };
 pub use records::board_records;
 pub use report::{ImuResidual, ResidualReport, static_residuals_mg};
+pub use thermal::{ThermalFit, ThermalOptions, fit_thermal};
 
 use std::fmt;
 use std::path::PathBuf;
@@ -82,6 +85,20 @@ pub enum CalibError {
     },
     /// A value does not fit the fixed-point table (Q19.12 `i32`, or a bias beyond ±65536 counts).
     OutOfRange(String),
+    /// A thermal fit's record has no frame with a valid board temperature.
+    NoTemperature {
+        /// Frames in the record.
+        frames: usize,
+    },
+    /// A thermal fit's record spans too little board temperature.
+    TemperatureSpan {
+        /// Lowest temperature, °C.
+        from_c: f64,
+        /// Highest temperature, °C.
+        to_c: f64,
+        /// Span needed, °C.
+        needed_c: f64,
+    },
     /// A calibration table failed to encode or decode.
     Table(shared::calib::CalError),
     /// A file could not be read or written.
@@ -115,6 +132,21 @@ impl fmt::Display for CalibError {
                 found,
             } => write!(f, "{what}: expected {expected}, found {found}"),
             Self::OutOfRange(s) => write!(f, "out of range: {s}"),
+            Self::NoTemperature { frames } => write!(
+                f,
+                "none of the {frames} frames carries a valid board temperature: a thermal fit needs a record with \
+                 the temperature (frame flag 'temperature valid')"
+            ),
+            Self::TemperatureSpan {
+                from_c,
+                to_c,
+                needed_c,
+            } => write!(
+                f,
+                "the record spans {:.2} °C of board temperature ({from_c:.2} … {to_c:.2} °C); a thermal fit needs at \
+                 least {needed_c} °C: record the still board over a temperature ramp or cycle",
+                to_c - from_c
+            ),
             Self::Table(e) => write!(f, "calibration table: {e:?} ({})", table_error(e)),
             Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
             Self::Format { path, message } => write!(f, "{}: {message}", path.display()),

@@ -448,6 +448,10 @@ pub fn fit_rate_table<const G: usize>(
             })
             .collect(),
         metadata: None,
+        t_ref_c: 0.0,
+        thermal: None,
+        weights: None,
+        thermal_fit: None,
     };
     Ok((fits, file))
 }

@@ -194,6 +194,11 @@ impl TrueGroupCal {
         &self.accel_bias
     }
 
+    /// ADC codes per unit reading of each raw channel (the nominal chain's slope, frame order).
+    pub fn slope(&self) -> &[f64; 7] {
+        &self.slope
+    }
+
     /// Readings of the 7 raw channels (°/s, g) for a true rate (°/s) and specific force (g), without errors.
     pub fn readings(&self, rate_dps: [f64; 3], accel_g: [f64; 3]) -> [f64; 7] {
         let dot = |r: &[f64; 3], v: &[f64; 3]| r[0] * v[0] + r[1] * v[1] + r[2] * v[2];

@@ -10,7 +10,9 @@
 //!   `N_i·√ρ` (resp. `B_i·√ρ_f`) and the independent generator keeps `N_i·√(1 − Σρ)`, so every sensor keeps its
 //!   own level and any two sensors of a mode have correlation ρ of their white parts;
 //! - [`CommonDrift`] processes are added with coefficient 1 to every sensor they cover;
-//! - [`Thermal`] adds `κ_i·(T(t) − T_mean)`, `κ_i` = axis coefficient + normal spread.
+//! - [`Thermal`] adds `κ_i·(T(t) − T_ref)` to the raw channel's reading, `κ_i` = axis coefficient + normal
+//!   spread drawn per raw channel (the two z gyros of a group each their own), so the bias of each raw channel's
+//!   code is linear in temperature with `κ_i · slope` counts/°C ([`Simulator::thermal_coef_counts`]).
 //!
 //! Outputs per sample: the readings; the ADC codes (true calibration applied inversely, see [`super::calib`]);
 //! the physical output `[gx, gy, gz, ax, ay, az]` of each group = the ideal calibration of the readings
@@ -320,6 +322,13 @@ impl Simulator {
         (group < GROUPS).then(|| self.sensors[group * CHANNELS + channel.index()].thermal_coef)
     }
 
+    /// Realised thermal bias coefficient of one raw channel in its ADC codes, counts/°C: the reading's
+    /// coefficient times the nominal chain's slope ([`TrueGroupCal::slope`]); 0 without [`Thermal`].
+    pub fn thermal_coef_counts(&self, group: usize, channel: Channel) -> Option<f64> {
+        self.thermal_coef(group, channel)
+            .map(|k| k * self.cal[group].slope()[channel.index()])
+    }
+
     /// Samples not yet produced.
     pub fn remaining(&self) -> u64 {
         self.cfg.samples - self.next
@@ -389,7 +398,7 @@ impl Simulator {
             p.noise.fill(&mut p.buf);
         }
         out.readings.resize(GROUPS * CHANNELS * cap, 0.0);
-        let t_ref = self.cfg.thermal.map_or(0.0, |t| t.mean_c);
+        let t_ref = self.cfg.thermal.map_or(0.0, |t| t.reference_c());
         for (si, s) in self.sensors.iter_mut().enumerate() {
             let r = &mut out.readings[si * cap..si * cap + n];
             s.noise.fill(r);

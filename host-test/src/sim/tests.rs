@@ -510,6 +510,8 @@ fn same_seed_same_output_whatever_the_chunking() {
         drift_c_per_h: 0.5,
         coef: [0.01; 6],
         coef_sd: [0.002; 6],
+        ref_c: None,
+        hold_after_s: None,
     });
     cfg.spread = PartSpread {
         level_ln: 0.2,
@@ -576,6 +578,8 @@ fn raw_frames_round_trip_through_the_nominal_calibration() {
         drift_c_per_h: 0.0,
         coef: [0.0; 6],
         coef_sd: [0.0; 6],
+        ref_c: None,
+        hold_after_s: None,
     });
     // Round the physical output only where the ADC does: none here, so `phys` is the unquantised ideal output.
     for p in &mut cfg.sensor {
@@ -693,6 +697,8 @@ fn thermal_drift_and_outlier_effects_are_as_configured() {
         drift_c_per_h: 36.0,
         coef: [0.02, 0.0, 0.0, 1e-3, 0.0, 0.0],
         coef_sd: [0.005, 0.0, 0.0, 0.0, 0.0, 0.0],
+        ref_c: None,
+        hold_after_s: None,
     });
     cfg.outliers.push(Outlier {
         group: 4,
@@ -813,6 +819,8 @@ fn bad_parameters_are_errors_not_panics() {
                 drift_c_per_h: 0.0,
                 coef: [0.0; 6],
                 coef_sd: [0.0; 6],
+                ref_c: None,
+                hold_after_s: None,
             })
         }),
         Box::new(|c| c.accel_g[0] = f64::NAN),
@@ -859,6 +867,8 @@ fn csv_header_names_the_interchange_columns() {
                 drift_c_per_h: 0.0,
                 coef: [0.0; 6],
                 coef_sd: [0.0; 6],
+                ref_c: None,
+                hold_after_s: None,
             });
         }
         let mut sim = Simulator::new(cfg).unwrap();
@@ -996,6 +1006,8 @@ fn csv_parses_with_the_project_reader() {
                 drift_c_per_h: 0.0,
                 coef: [0.0; 6],
                 coef_sd: [0.0; 6],
+                ref_c: None,
+                hold_after_s: None,
             });
         }
         let mut sim = Simulator::new(cfg).unwrap();

@@ -40,6 +40,8 @@ pub fn thermal(cfg: &SimConfig, axes: &[Axis], added: f64) -> Thermal {
         drift_c_per_h: 0.08,
         coef: [0.0; 6],
         coef_sd: [0.0; 6],
+        ref_c: None,
+        hold_after_s: None,
     };
     let dt = 1.0 / RATE_HZ;
     let temp: Vec<f64> = (0..cfg.samples).map(|i| t.temp_at(i as f64 * dt)).collect();

@@ -5,7 +5,7 @@ use host_test::load;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
-#[command(group(clap::ArgGroup::new("mode").required(true).args(["static_rec", "rate_table"])))]
+#[command(group(clap::ArgGroup::new("mode").required(true).args(["static_rec", "rate_table", "thermal"])))]
 pub struct Args {
     /// Multi-position static calibration from a MIMU4444 stream (poses found automatically).
     #[arg(long = "static", value_name = "REC")]
@@ -14,6 +14,21 @@ pub struct Args {
     /// +Ω, −Ω, 0 about the vertical.
     #[arg(long, num_args = 18, value_name = "REC")]
     rate_table: Vec<PathBuf>,
+    /// Thermal calibration of our board: a frame log of the still board over a temperature ramp or cycle (≥ 10 °C);
+    /// per raw channel the code is fitted against T − T_ref and (T − T_ref)², and the terms are added to --base.
+    #[arg(long, value_name = "REC")]
+    thermal: Option<PathBuf>,
+    /// With --thermal: the calibration whose matrices and biases are kept (the factory table otherwise); its
+    /// biases are taken to hold at T_ref.
+    #[arg(long, requires = "thermal")]
+    base: Option<PathBuf>,
+    /// With --thermal: the reference temperature T_ref, °C (default: the base's when it records one, else the
+    /// record's mean temperature).
+    #[arg(long, requires = "thermal", allow_hyphen_values = true)]
+    t_ref_c: Option<f64>,
+    /// With --thermal: one line per group and raw channel (default: a summary per channel type).
+    #[arg(long)]
+    verbose: bool,
     /// Table rate Ω, °/s (rate-table mode).
     #[arg(long, default_value_t = 100.0)]
     omega: f64,
@@ -42,6 +57,9 @@ pub fn run(a: Args) -> Result<()> {
         self as cal, BiasModel, BiasOptions, DetectOptions, StaticCalOptions,
     };
     let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
+    if let Some(rec) = &a.thermal {
+        return run_thermal(&a, rec);
+    }
     if let Some(rec) = &a.static_rec {
         let m = host_test::mimu::read(rec).map_err(|e| match e {
             // The I/O error names the file already.
@@ -158,6 +176,135 @@ pub fn run(a: Args) -> Result<()> {
                 .fold(0f64, |m, &x| m.max(x))
         );
     }
+    cal::write_calibration::<16>(&file, &a.out).map_err(cerr)?;
+    println!("calibration: {}", a.out.display());
+    Ok(())
+}
+
+/// Names of the raw channels in frame order.
+const RAW_NAMES: [&str; 7] = [
+    "gyro A x", "gyro A z", "gyro B y", "gyro B z", "accel x", "accel y", "accel z",
+];
+
+/// `--thermal`: the fit, a summary (or every channel with --verbose), the base with the terms added.
+fn run_thermal(a: &Args, rec: &std::path::Path) -> Result<()> {
+    use host_test::calibrate::{self as cal, ThermalOptions};
+    use shared::calib::CalibrationTable;
+    let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
+    let bytes = std::fs::read(rec).with_context(|| format!("reading {}", rec.display()))?;
+    let log = host_test::formats::framelog::FrameLog::decode(&bytes);
+    if log.frames.is_empty() {
+        bail!("{}: no valid frame", rec.display());
+    }
+    let (mut file, base_name) = match &a.base {
+        Some(p) => (
+            cal::read_calibration::<16>(p).map_err(cerr)?,
+            p.display().to_string(),
+        ),
+        None => (
+            cal::CalibrationFile::from_table(&CalibrationTable::<16>::factory()),
+            "the factory table".to_string(),
+        ),
+    };
+    // The base's biases hold at its reference temperature when it records one (thermal terms, or a non-zero
+    // t_ref_c); the factory table records none.
+    let base_t_ref = (a.base.is_some() && (file.thermal.is_some() || file.t_ref_c != 0.0))
+        .then_some(file.t_ref_c);
+    let opts = ThermalOptions {
+        t_ref_c: a.t_ref_c.or(base_t_ref),
+        ..ThermalOptions::default()
+    };
+    let fit = cal::fit_thermal(&log.frames, &opts, &rec.display().to_string())
+        .map_err(|e| anyhow::anyhow!("{}: {e}", rec.display()))?;
+    let m = &fit.meta;
+    println!(
+        "{}: {} frames with a temperature ({} without, left out), board {:.2} … {:.2} °C; T_ref {:.2} °C ({})",
+        rec.display(),
+        m.samples,
+        fit.skipped,
+        m.temp_range_c[0],
+        m.temp_range_c[1],
+        fit.t_ref_c,
+        if a.t_ref_c.is_some() {
+            "given"
+        } else if base_t_ref.is_some() {
+            "the base's"
+        } else {
+            "the record's mean"
+        }
+    );
+    let lin = |g: usize, c: usize| {
+        let t = &fit.terms[g];
+        if c < 4 {
+            (t.gyro_lin_counts_per_c[c], t.gyro_quad_counts_per_c2[c])
+        } else {
+            (
+                t.accel_lin_counts_per_c[c - 4],
+                t.accel_quad_counts_per_c2[c - 4],
+            )
+        }
+    };
+    println!(
+        "code = a + lin·(T − T_ref) + quad·(T − T_ref)² per raw channel; standard errors from the residuals' \
+         Haar (Allan) variances, extrapolated to the record's length by their noise type"
+    );
+    if a.verbose {
+        println!(
+            "  group channel     lin counts/°C   ±SE     quad counts/°C²   ±SE        residual RMS counts"
+        );
+        for g in 0..16 {
+            for (c, name) in RAW_NAMES.iter().enumerate() {
+                let (l, q) = lin(g, c);
+                let f = &m.groups[g];
+                println!(
+                    "  {g:5} {name:10} {l:+12.4} {:8.4} {q:+14.6} {:10.6} {:14.2}",
+                    f.lin_se_counts_per_c[c], f.quad_se_counts_per_c2[c], f.residual_rms_counts[c]
+                );
+            }
+        }
+    } else {
+        println!(
+            "  channel     lin counts/°C: min … max over 16 groups  (largest SE)   quad counts/°C²: min … max  \
+             (largest SE)   residual RMS counts: max"
+        );
+        for (c, name) in RAW_NAMES.iter().enumerate() {
+            let range = |f: &dyn Fn(usize) -> f64| {
+                (0..16)
+                    .map(f)
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
+                        (l.min(x), h.max(x))
+                    })
+            };
+            let max = |f: &dyn Fn(usize) -> f64| (0..16).map(f).fold(0f64, f64::max);
+            let (l0, l1) = range(&|g| lin(g, c).0);
+            let (q0, q1) = range(&|g| lin(g, c).1);
+            println!(
+                "  {name:10} {l0:+9.4} … {l1:+9.4}  ({:.4})                {q0:+9.6} … {q1:+9.6}  ({:.6})      {:.2}",
+                max(&|g| m.groups[g].lin_se_counts_per_c[c]),
+                max(&|g| m.groups[g].quad_se_counts_per_c2[c]),
+                max(&|g| m.groups[g].residual_rms_counts[c])
+            );
+        }
+    }
+    // What the fit cannot use: the code at T_ref of a still board is the bias plus the true input.
+    let mut d: Vec<f64> = (0..16)
+        .flat_map(|g| {
+            let (f, b) = (&m.groups[g], &file.groups[g]);
+            (0..4).map(move |c| f.intercept_counts[c] - b.gyro_bias_counts[c])
+        })
+        .collect();
+    d.sort_by(f64::total_cmp);
+    println!(
+        "biases of {base_name} kept (taken as holding at T_ref); the still board's gyro code at T_ref minus them \
+         (bias change + Earth rate): median {:+.2} counts, range {:+.2} … {:+.2}",
+        0.5 * (d[d.len() / 2 - 1] + d[d.len() / 2]),
+        d[0],
+        d[d.len() - 1]
+    );
+    file.cal_id = a.cal_id;
+    file.t_ref_c = fit.t_ref_c;
+    file.thermal = Some(fit.terms);
+    file.thermal_fit = Some(fit.meta);
     cal::write_calibration::<16>(&file, &a.out).map_err(cerr)?;
     println!("calibration: {}", a.out.display());
     Ok(())

@@ -54,6 +54,10 @@ pub struct Args {
     /// Random seed (same seed, same output).
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Seed of the board's parts (noise levels, biases, thermal coefficients, calibration errors), independent of
+    /// --seed (the noise): records with one --board-seed are the same board; default = --seed.
+    #[arg(long, conflicts_with = "model")]
+    board_seed: Option<u64>,
     /// FPGA base rate before decimation, Hz.
     #[arg(long, default_value_t = host_test::FPGA_BASE_RATE_HZ)]
     base_rate_hz: f64,
@@ -205,6 +209,7 @@ pub fn run(a: Args) -> Result<()> {
         cfg.accel_g = xyz(g, "--accel-g")?;
     }
     a.effects.apply(&mut cfg)?;
+    cfg.board_seed = a.board_seed;
     let samples = cfg.samples;
     let pb = bar(samples, "samples");
     let t0 = std::time::Instant::now();

@@ -28,6 +28,10 @@ fn cal(rng: &mut Rng, n: usize) -> CalibrationFile {
             })
             .collect(),
         metadata: None,
+        t_ref_c: 0.0,
+        thermal: None,
+        weights: None,
+        thermal_fit: None,
     }
 }
 

@@ -59,6 +59,10 @@ fn sample_file(rng: &mut Rng, n: usize) -> CalibrationFile {
                 })
                 .collect(),
         }),
+        t_ref_c: 0.0,
+        thermal: None,
+        weights: None,
+        thermal_fit: None,
     }
 }
 
@@ -243,4 +247,122 @@ fn fixed_point_apply_matches_f64() {
             );
         }
     }
+}
+
+/// A 16-group file with thermal terms and weights: to the table and back gives the same values within half a
+/// fixed-point step, the table's reference temperature and Q formats are the documented ones (checked against
+/// hand-derived integers), and values beyond the formats are refused.
+#[test]
+fn thermal_terms_and_weights_roundtrip() {
+    let mut rng = Rng::new(27);
+    let mut f = sample_file(&mut rng, 16);
+    f.groups
+        .iter_mut()
+        .for_each(|g| g.gyro_bias_counts[3] = 0.0);
+    f.t_ref_c = 21.37;
+    f.thermal = Some(
+        (0..16)
+            .map(|_| GroupThermalF64 {
+                gyro_lin_counts_per_c: core::array::from_fn(|_| 8.0 + 3.0 * rng.normal()),
+                gyro_quad_counts_per_c2: core::array::from_fn(|_| 0.05 * rng.normal()),
+                accel_lin_counts_per_c: core::array::from_fn(|_| 2.4 + rng.normal()),
+                accel_quad_counts_per_c2: core::array::from_fn(|_| 0.01 * rng.normal()),
+            })
+            .collect(),
+    );
+    f.weights = Some((0..16).map(|g| [(1.0 + g as f64) / 136.0; 6]).collect());
+    let t = f.to_table::<16>().unwrap();
+    assert_eq!(t.t_ref_cdeg, 2137);
+    // 8 counts/°C = 0.08 counts per 0.01 °C = 0.08·2²⁸ in Q28.
+    let th = &f.thermal.as_ref().unwrap()[0];
+    let q28 = (th.gyro_lin_counts_per_c[0] / 100.0 * 268_435_456.0).round() as i32;
+    assert_eq!(t.thermal[0].gyro_lin_q28[0], q28);
+    let q40 = (th.accel_quad_counts_per_c2[2] / 1e4 * 1_099_511_627_776.0).round() as i32;
+    assert_eq!(t.thermal[0].accel_quad_q40[2], q40);
+    assert_eq!(
+        t.weights_q16[15][0],
+        (16.0 / 136.0 * 65536.0_f64).round() as i32
+    );
+    // Through the encoded form and back to f64.
+    let bin = f.to_bin::<16>().unwrap();
+    let back = CalibrationFile::from_bin::<16>(&bin).unwrap();
+    assert_eq!(back.t_ref_c, 21.37);
+    for (a, b) in back
+        .thermal
+        .as_ref()
+        .unwrap()
+        .iter()
+        .zip(f.thermal.as_ref().unwrap())
+    {
+        for (x, y) in a
+            .gyro_lin_counts_per_c
+            .iter()
+            .chain(&a.accel_lin_counts_per_c)
+            .zip(
+                b.gyro_lin_counts_per_c
+                    .iter()
+                    .chain(&b.accel_lin_counts_per_c),
+            )
+        {
+            assert!((x - y).abs() <= 0.5 * 100.0 / 268_435_456.0, "{x} {y}");
+        }
+        for (x, y) in a
+            .gyro_quad_counts_per_c2
+            .iter()
+            .chain(&a.accel_quad_counts_per_c2)
+            .zip(
+                b.gyro_quad_counts_per_c2
+                    .iter()
+                    .chain(&b.accel_quad_counts_per_c2),
+            )
+        {
+            assert!((x - y).abs() <= 0.5 * 1e4 / 1_099_511_627_776.0, "{x} {y}");
+        }
+    }
+    for (a, b) in back
+        .weights
+        .as_ref()
+        .unwrap()
+        .iter()
+        .zip(f.weights.as_ref().unwrap())
+    {
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() <= 0.5 / 65536.0);
+        }
+    }
+    // The table again from what came back: identical.
+    assert_eq!(back.to_table::<16>().unwrap(), t);
+    // JSON keeps everything.
+    assert_eq!(
+        CalibrationFile::from_json(&f.to_json().unwrap()).unwrap(),
+        f
+    );
+    // Refusals: a linear term beyond Q28 (±800 counts/°C), a quadratic beyond Q40 (±19.5 counts/°C²), a reference
+    // beyond ±327.67 °C, a weight beyond 1, an axis whose weights do not sum to a positive value.
+    let refused = |g: &dyn Fn(&mut CalibrationFile), says: &str| {
+        let mut h = f.clone();
+        g(&mut h);
+        let e = h.to_table::<16>().unwrap_err().to_string();
+        assert!(e.contains(says), "{e}");
+    };
+    refused(
+        &|h| h.thermal.as_mut().unwrap()[3].gyro_lin_counts_per_c[1] = 900.0,
+        "gyro thermal linear = 900",
+    );
+    refused(
+        &|h| h.thermal.as_mut().unwrap()[3].accel_quad_counts_per_c2[0] = -20.0,
+        "accel thermal quadratic = -20",
+    );
+    refused(&|h| h.t_ref_c = 400.0, "t_ref_c = 400");
+    refused(&|h| h.weights.as_mut().unwrap()[2][4] = 1.5, "beyond ±1");
+    refused(
+        &|h| {
+            h.weights
+                .as_mut()
+                .unwrap()
+                .iter_mut()
+                .for_each(|w| w[1] = -0.01)
+        },
+        "axis 1 sum",
+    );
 }

@@ -92,11 +92,12 @@ impl DriftKind {
     }
 }
 
-/// Board temperature `T(t) = mean + amplitude·sin(2πt/period + phase) + drift·t`, output as `temp_c`, and
-/// per-sensor bias coefficients.
+/// Board temperature `T(t) = mean + amplitude·sin(2πt/period + phase) + drift·min(t, hold_after)`, output as
+/// `temp_c`, and per-sensor bias coefficients: each raw channel's reading gains `κ·(T(t) − T_ref)` (before the
+/// ADC, so in codes a per-raw-channel linear law of `κ · slope` counts/°C, `TrueGroupCal::slope`), `T_ref` = [`Self::ref_c`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Thermal {
-    /// Mean temperature, °C (also the reference of the bias coefficients).
+    /// Mean temperature, °C (the start of a ramp: `amplitude_c` 0 and a drift).
     pub mean_c: f64,
     /// Amplitude of the sinusoid, °C.
     pub amplitude_c: f64,
@@ -110,6 +111,11 @@ pub struct Thermal {
     pub coef: [f64; 6],
     /// Standard deviation between sensors of the coefficient, same units (normal draws).
     pub coef_sd: [f64; 6],
+    /// Temperature at which the thermal bias term is zero, °C: a property of the parts, so that records of one
+    /// board (`SimConfig::board_seed`) under different temperature profiles share one bias law; `None` = `mean_c`.
+    pub ref_c: Option<f64>,
+    /// Time after which the linear drift stops (the end of a ramp), s; `None` = never.
+    pub hold_after_s: Option<f64>,
 }
 
 impl Thermal {
@@ -118,7 +124,12 @@ impl Thermal {
         self.mean_c
             + self.amplitude_c
                 * (2.0 * std::f64::consts::PI * t_s / self.period_s + self.phase_rad).sin()
-            + self.drift_c_per_h * t_s / 3600.0
+            + self.drift_c_per_h * self.hold_after_s.map_or(t_s, |h| t_s.min(h)) / 3600.0
+    }
+
+    /// Temperature at which the thermal bias term is zero, °C ([`Self::ref_c`], else `mean_c`).
+    pub fn reference_c(&self) -> f64 {
+        self.ref_c.unwrap_or(self.mean_c)
     }
 }
 
@@ -326,6 +337,7 @@ impl SimConfig {
         if let Some(t) = &self.thermal {
             let all = [t.mean_c, t.amplitude_c, t.phase_rad, t.drift_c_per_h]
                 .into_iter()
+                .chain(t.ref_c)
                 .chain(t.coef)
                 .chain(t.coef_sd);
             check(all.into_iter().all(f64::is_finite), || {
@@ -334,6 +346,10 @@ impl SimConfig {
             check(t.period_s.is_finite() && t.period_s > 0.0, || {
                 "thermal period_s must be > 0".into()
             })?;
+            check(
+                t.hold_after_s.is_none_or(|h| !h.is_nan() && h >= 0.0),
+                || "thermal hold_after_s must be ≥ 0".into(),
+            )?;
             check(t.coef_sd.iter().all(|&v| v >= 0.0), || {
                 "thermal coef_sd must be ≥ 0".into()
             })?;
