@@ -148,15 +148,16 @@ pub struct CalibrationFile {
     pub thermal_fit: Option<ThermalFitMetadata>,
 }
 
-/// `x · 2^bits` rounded to nearest as `i32`, or an [`CalibError::OutOfRange`] naming `what`.
-fn fixed(x: f64, bits: u32, what: &str, unit: &str) -> Result<i32, CalibError> {
-    let v = (x * f64::from(bits).exp2()).round();
+/// `x · scale · 2^bits` rounded to nearest as `i32` (`x` in the file's `unit`, `scale` the table's units per file
+/// unit), or an [`CalibError::OutOfRange`] naming `what` in the file's unit.
+fn fixed(x: f64, scale: f64, bits: u32, what: &str, unit: &str) -> Result<i32, CalibError> {
+    let v = (x * scale * f64::from(bits).exp2()).round();
     if v.is_finite() && v >= f64::from(i32::MIN) && v <= f64::from(i32::MAX) {
         Ok(v as i32)
     } else {
         Err(CalibError::OutOfRange(format!(
             "{what} = {x} {unit} does not fit the table (Q{bits} in i32: |x| < {:.4} {unit})",
-            f64::from(i32::MAX) / f64::from(bits).exp2()
+            f64::from(i32::MAX) / f64::from(bits).exp2() / scale
         )))
     }
 }
@@ -164,8 +165,8 @@ fn fixed(x: f64, bits: u32, what: &str, unit: &str) -> Result<i32, CalibError> {
 impl GroupThermalF64 {
     /// To the table's form (Q28 per 0.01 °C, Q40 per (0.01 °C)²).
     pub fn to_fixed(&self) -> Result<GroupThermal, CalibError> {
-        let lin = |x: f64, what: &str| fixed(x / 100.0, 28, what, "counts per 0.01 °C");
-        let quad = |x: f64, what: &str| fixed(x / 1e4, 40, what, "counts per (0.01 °C)²");
+        let lin = |x: f64, what: &str| fixed(x, 1e-2, 28, what, "counts/°C");
+        let quad = |x: f64, what: &str| fixed(x, 1e-4, 40, what, "counts/°C²");
         let mut t = GroupThermal::ZERO;
         for c in 0..GYRO_RAW {
             t.gyro_lin_q28[c] = lin(self.gyro_lin_counts_per_c[c], "gyro thermal linear")?;
@@ -211,7 +212,7 @@ fn weights_q16(w: &[[f64; AXES]]) -> Result<Vec<[i32; AXES]>, CalibError> {
     for (g, row) in w.iter().enumerate() {
         let mut q = [0; AXES];
         for (a, (&x, slot)) in row.iter().zip(&mut q).enumerate() {
-            *slot = fixed(x, 16, &format!("weight of group {g} axis {a}"), "")?;
+            *slot = fixed(x, 1.0, 16, &format!("weight of group {g} axis {a}"), "")?;
             if slot.unsigned_abs() > WEIGHT_LIMIT_Q16 as u32 {
                 return Err(CalibError::OutOfRange(format!(
                     "weight of group {g} axis {a} = {x} is beyond ±1"
