@@ -188,7 +188,7 @@ fn config(
 }
 
 /// The frame log of a simulation, and the simulator (for its true parameters).
-fn frames(cfg: SimConfig) -> Result<(Vec<u8>, Simulator)> {
+pub fn frames(cfg: SimConfig) -> Result<(Vec<u8>, Simulator)> {
     let mut sim = Simulator::new(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut bytes = Vec::with_capacity(sim.remaining() as usize * shared::wire::frame::FRAME_LEN);
     let mut chunk = Chunk::default();
@@ -203,7 +203,7 @@ fn frames(cfg: SimConfig) -> Result<(Vec<u8>, Simulator)> {
 }
 
 /// The six fused axes (°/s, g) of a frame log replayed through the core with `cal`, as decoded from telemetry.
-fn fused(bytes: &[u8], cal: CalibrationTable<GROUPS>, fpo: u16) -> Vec<[f64; AXES]> {
+pub fn fused(bytes: &[u8], cal: CalibrationTable<GROUPS>, fpo: u16) -> Vec<[f64; AXES]> {
     let opts = ReplayOptions {
         config: PipelineConfig {
             frames_per_output: fpo,

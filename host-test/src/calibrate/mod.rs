@@ -30,6 +30,7 @@ mod rate_table;
 mod records;
 mod report;
 mod thermal;
+pub mod weights;
 
 pub use biases::{BiasMethod, BiasOptions, BiasUpdate, reestimate_biases};
 pub use detect::{DetectOptions, StaticInterval, detect_static};

@@ -5,7 +5,7 @@ use host_test::load;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
-#[command(group(clap::ArgGroup::new("mode").required(true).args(["static_rec", "rate_table", "thermal"])))]
+#[command(group(clap::ArgGroup::new("mode").required(true).args(["static_rec", "rate_table", "thermal", "weights"])))]
 pub struct Args {
     /// Multi-position static calibration from a MIMU4444 stream (poses found automatically).
     #[arg(long = "static", value_name = "REC")]
@@ -18,9 +18,27 @@ pub struct Args {
     /// per raw channel the code is fitted against T − T_ref and (T − T_ref)², and the terms are added to --base.
     #[arg(long, value_name = "REC")]
     thermal: Option<PathBuf>,
-    /// With --thermal: the calibration whose matrices and biases are kept (the factory table otherwise); its
-    /// biases are taken to hold at T_ref.
-    #[arg(long, requires = "thermal")]
+    /// Fixed fusion weights for a τ region (--tau-min, --tau-max) from a record of the board (frame log, CSV or
+    /// .npy): generalised least squares on the sensors' Allan covariance per axis, added to --base. The core uses
+    /// them instead of its running inverse-variance weights (`FusionMode::Fixed`).
+    #[arg(long, value_name = "REC")]
+    weights: Option<PathBuf>,
+    /// With --weights: shortest τ of the region, s.
+    #[arg(long, default_value_t = 100.0)]
+    tau_min: f64,
+    /// With --weights: longest τ of the region, s.
+    #[arg(long, default_value_t = 3000.0)]
+    tau_max: f64,
+    /// With --weights: allow negative weights (by default every weight is ≥ 0).
+    #[arg(long)]
+    allow_negative: bool,
+    /// With --weights: fit on the whole record (the default fits on the first half and reports the gain measured
+    /// on the second, which it was not fitted on).
+    #[arg(long)]
+    whole_record: bool,
+    /// With --thermal or --weights: the calibration kept and added to (the factory table otherwise); with
+    /// --thermal its biases are taken to hold at T_ref.
+    #[arg(long)]
     base: Option<PathBuf>,
     /// With --thermal: the reference temperature T_ref, °C (default: the base's when it records one, else the
     /// record's mean temperature).
@@ -59,6 +77,9 @@ pub fn run(a: Args) -> Result<()> {
     let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
     if let Some(rec) = &a.thermal {
         return run_thermal(&a, rec);
+    }
+    if let Some(rec) = &a.weights {
+        return run_weights(&a, rec);
     }
     if let Some(rec) = &a.static_rec {
         let m = host_test::mimu::read(rec).map_err(|e| match e {
@@ -307,5 +328,87 @@ fn run_thermal(a: &Args, rec: &std::path::Path) -> Result<()> {
     file.thermal_fit = Some(fit.meta);
     cal::write_calibration::<16>(&file, &a.out).map_err(cerr)?;
     println!("calibration: {}", a.out.display());
+    Ok(())
+}
+
+/// `--weights`: per axis, the GLS weights of the record's sensors for the τ region, written into the base.
+fn run_weights(a: &Args, rec: &std::path::Path) -> Result<()> {
+    use host_test::calibrate::weights::{SHRINKAGE, WeightOptions, table_weights};
+    use host_test::calibrate::{self as cal};
+    use shared::calib::CalibrationTable;
+    let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
+    let mut file = match &a.base {
+        Some(p) => cal::read_calibration::<16>(p).map_err(cerr)?,
+        None => cal::CalibrationFile::from_table(&CalibrationTable::<16>::factory()),
+    };
+    let table = file.to_table::<16>().map_err(cerr)?;
+    let loaded = load::load_with(
+        rec,
+        Some(&load::Calibration::Board(Box::new(table))),
+        shared::wire::clock::FPGA_BASE_RATE_MILLIHZ,
+    )?;
+    let r = &loaded.recording;
+    let n = r.t_s.len();
+    let rate_hz = if n >= 2 {
+        (n - 1) as f64 / (r.t_s[n - 1] - r.t_s[0])
+    } else {
+        f64::NAN
+    };
+    let opts = WeightOptions {
+        tau_min_s: a.tau_min,
+        tau_max_s: a.tau_max,
+        allow_negative: a.allow_negative,
+    };
+    println!(
+        "{}: {n} samples at {rate_hz:.3} Hz; weights for τ {} … {} s (generalised least squares on the sensors' \
+         Allan covariance, octave τ's, shrunk {:.0} % to its diagonal{})",
+        rec.display(),
+        a.tau_min,
+        a.tau_max,
+        100.0 * SHRINKAGE,
+        if a.allow_negative {
+            "; negative weights allowed"
+        } else {
+            "; weights ≥ 0"
+        }
+    );
+    let (weights, axes) = table_weights(r, 16, &opts, !a.whole_record)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", rec.display()))?;
+    for (name, (groups, w)) in ["gx", "gy", "gz", "ax", "ay", "az"].iter().zip(&axes) {
+        // The gain over the equal mean: measured on the held-out second half, else in sample (optimistic).
+        let (taus, equal, weighted, what) = match &w.held_out {
+            Some(h) => (&h.taus_s, &h.adev_equal, &h.adev_weighted, "held-out half"),
+            None => (&w.taus_s, &w.adev_equal, &w.adev_weighted, "in sample"),
+        };
+        let gain: Vec<String> = taus
+            .iter()
+            .zip(equal.iter().zip(weighted))
+            .map(|(tau, (e, g))| format!("{tau:.0} s {:.2}×", e / g))
+            .collect();
+        let zero: Vec<String> = groups
+            .iter()
+            .zip(&w.weights)
+            .filter(|(_, x)| **x == 0.0)
+            .map(|(g, _)| g.to_string())
+            .collect();
+        println!(
+            "  {name}  weights {:.3} … {:.3} (sum 1){}; ADEV equal mean / weighted ({what}): {}",
+            w.weights.iter().copied().fold(f64::INFINITY, f64::min),
+            w.weights.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            if zero.is_empty() {
+                String::new()
+            } else {
+                format!(", groups left out: {}", zero.join(" "))
+            },
+            gain.join(", ")
+        );
+    }
+    file.weights = Some(weights);
+    file.cal_id = a.cal_id;
+    cal::write_calibration::<16>(&file, &a.out).map_err(cerr)?;
+    println!(
+        "calibration: {} (fusion mode Fixed once loaded)",
+        a.out.display()
+    );
     Ok(())
 }
