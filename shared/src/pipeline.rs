@@ -20,13 +20,13 @@
 //! Allan accumulators (they assume contiguous data; `LinkCounters::frames_dropped` says how far that holds).
 //! While a fused axis has no valid sensor, its Allan channel repeats the last valid value (`invalid_frames`).
 
-use crate::allan::{AllanSet, LEVELS};
+use crate::allan::AllanSet;
 use crate::calib::thermal::ThermalComp;
 use crate::calib::{AXES, CalibrationTable, RawCounts, encoded_len_max};
 use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, FusionMode, HealthMask};
 use crate::telemetry::{
-    Ack, AllanReport, CalSource, Command, CommandEnvelope, DecodeError, FaultReport, HealthReport,
-    Mode, PpsReport, Reject, Telemetry, TimeReport, decode, peek_tag,
+    Ack, CalSource, Command, CommandEnvelope, DecodeError, HealthReport, Mode, PpsReport, Reject,
+    Telemetry, TimeReport, decode, peek_tag,
 };
 use crate::wire::clock::TicksToUs;
 use crate::wire::frame::{FRAME_LEN, GROUPS};
@@ -127,15 +127,6 @@ struct FrameScratch {
     axes: [[i32; AXES]; GROUPS],
 }
 
-/// Lazily generated reports (so that a dump never needs a large buffer).
-#[derive(Clone, Copy, Debug, Default)]
-struct Cursor {
-    /// Allan dump: next (channel, level) and the end channel.
-    allan: Option<(u8, u8, u8)>,
-    /// Fault dump: next group.
-    faults: Option<u8>,
-}
-
 /// The Allan accumulators of all channels (57 944 B: 102 channels × 568 B + 8; all zero when new). The MCU keeps it
 /// in CCM RAM, zeroed in place at boot (`firmware/src/board.rs`); the host on the heap.
 pub struct AllanBank(pub AllanSet<ALLAN_CHANNELS>);
@@ -175,7 +166,8 @@ pub struct Pipeline<B> {
     out_seq: u32,
     outputs_since_health: u16,
     outbox: heapless::Deque<Output, OUTBOX_LEN>,
-    cursor: Cursor,
+    /// The dumps under way.
+    cursor: Dumps,
     uptime_ms: u64,
     arrival_us: Option<u64>,
     last_arrival_us: Option<u64>,
@@ -220,10 +212,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             out_seq: 0,
             outputs_since_health: 0,
             outbox: heapless::Deque::new(),
-            cursor: Cursor {
-                allan: None,
-                faults: None,
-            },
+            cursor: Dumps::NEW,
             uptime_ms: 0,
             arrival_us: None,
             last_arrival_us: None,
@@ -447,37 +436,9 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// under way. Separate from [`Self::poll`] so that the platform pulls dumps only as fast as its bus drains,
     /// without ever delaying the FPGA link.
     pub fn poll_dump(&mut self) -> Option<Telemetry> {
-        if let Some(group) = self.cursor.faults {
-            self.cursor.faults = group
-                .checked_add(1)
-                .filter(|&next| usize::from(next) < GROUPS);
-            if let Some([gyro, accel]) = self.fusion.fault_counts(usize::from(group)) {
-                return Some(Telemetry::Faults(FaultReport { group, gyro, accel }));
-            }
-        }
-        while let Some((channel, level, end)) = self.cursor.allan {
-            // channel < end ≤ ALLAN_CHANNELS < 255: the saturating add never saturates (and would end the dump).
-            let (next_channel, next_level) =
-                match level.checked_add(1).filter(|&l| usize::from(l) < LEVELS) {
-                    Some(next_level) => (channel, next_level),
-                    None => (channel.saturating_add(1), 0),
-                };
-            self.cursor.allan = (next_channel < end).then_some((next_channel, next_level, end));
-            let tau0_ps = self.tau0_ps().unwrap_or(0);
-            let set = &self.allan.borrow().0;
-            if let Some(l) = set
-                .level(usize::from(channel), usize::from(level))
-                .filter(|l| l.count > 0)
-            {
-                return Some(Telemetry::Allan(AllanReport {
-                    channel,
-                    tau0_ps,
-                    samples: set.samples(),
-                    level: l,
-                }));
-            }
-        }
-        None
+        let tau0_ps = self.tau0_ps().unwrap_or(0);
+        self.cursor
+            .next(&self.fusion, &self.allan.borrow().0, tau0_ps)
     }
 
     /// A health report now.
@@ -733,21 +694,13 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 self.cal.commit()?;
                 self.calibration_changed(CalSource::Uploaded);
             }
-            Command::AllanRequest { first, count } => {
-                let end = usize::from(first)
-                    .saturating_add(usize::from(count))
-                    .min(ALLAN_CHANNELS);
-                if usize::from(first) >= ALLAN_CHANNELS || count == 0 {
-                    return Err(Reject::BadArgument);
-                }
-                self.cursor.allan = Some((first, 0, end as u8));
-            }
+            Command::AllanRequest { first, count } => self.cursor.start_allan(first, count)?,
             Command::AllanReset => self.allan.borrow_mut().0.reset(),
             Command::HealthRequest { detail } => {
                 let h = self.health();
                 self.push(Output::Telemetry(Telemetry::Health(h)));
                 if detail {
-                    self.cursor.faults = Some(0);
+                    self.cursor.start_faults();
                 }
             }
         }
@@ -757,11 +710,13 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 
 mod averager;
 mod calibration;
+mod dump;
 mod nav_stage;
 mod time_sync;
 
 use averager::Averager;
 use calibration::Calibration;
+use dump::Dumps;
 use nav_stage::NavStage;
 pub use time_sync::PPS_TOLERANCE_US;
 use time_sync::TimeSync;

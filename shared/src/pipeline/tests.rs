@@ -1,7 +1,9 @@
 use super::*;
 use crate::calib::{AZ, board};
 use crate::crc::crc32c;
-use crate::telemetry::{CAL_CHUNK_MAX, FusedReport, NavReport, PROTOCOL_VERSION, encode};
+use crate::telemetry::{
+    AllanReport, CAL_CHUNK_MAX, FaultReport, FusedReport, NavReport, PROTOCOL_VERSION, encode,
+};
 use crate::testutil::{Rng, rms};
 use crate::wire::FrameRepr;
 use crate::wire::clock::FPGA_BASE_RATE_MILLIHZ;
