@@ -28,11 +28,9 @@ use crate::telemetry::{
     Ack, CalSource, Command, CommandEnvelope, DecodeError, HealthReport, Mode, PpsReport, Reject,
     Telemetry, TimeReport, decode, peek_tag,
 };
-use crate::wire::clock::TicksToUs;
 use crate::wire::frame::{FRAME_LEN, GROUPS};
-use crate::wire::{FpgaControl, FrameClock, FrameDecoder, LinkCounters, SeqGap};
+use crate::wire::{FpgaControl, LinkCounters, SeqGap};
 use core::borrow::BorrowMut;
-use core::num::{NonZeroU64, NonZeroU128};
 
 /// Allan channels of the calibrated sensor axes: group g, axis a → channel 6g + a.
 pub const SENSOR_CHANNELS: usize = GROUPS * AXES;
@@ -149,7 +147,8 @@ impl Default for AllanBank {
 /// be built on the stack.
 pub struct Pipeline<B> {
     config: PipelineConfig,
-    decoder: FrameDecoder,
+    /// Link bytes to frames, and frames to time.
+    intake: Intake,
     /// The table in force, its thermal compensation and the upload of the next.
     cal: Calibration,
     fusion: Fusion<GROUPS>,
@@ -158,9 +157,6 @@ pub struct Pipeline<B> {
     /// The frame in work: every field is written before it is read, each frame (kept here rather than zeroed on the
     /// stack each frame: −0.3 k Cortex-M4 instructions per frame).
     scratch: FrameScratch,
-    clock: FrameClock,
-    /// The frame clock's ticks in µs, kept incrementally.
-    ticks_us: TicksToUs,
     last: FusedSample,
     avg: Averager,
     out_seq: u32,
@@ -169,9 +165,6 @@ pub struct Pipeline<B> {
     /// The dumps under way.
     cursor: Dumps,
     uptime_ms: u64,
-    arrival_us: Option<u64>,
-    last_arrival_us: Option<u64>,
-    time_gaps: u32,
     mode: Mode,
     /// Frame time and spacecraft time.
     time: TimeSync,
@@ -191,7 +184,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     pub const fn new(config: PipelineConfig, bank: B) -> Self {
         Self {
             config,
-            decoder: FrameDecoder::new(),
+            intake: Intake::NEW,
             cal: Calibration::NEW,
             fusion: Fusion::new(config.fusion),
             allan: bank,
@@ -200,8 +193,6 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 raw: [RawCounts::ZERO; GROUPS],
                 axes: [[0; AXES]; GROUPS],
             },
-            clock: FrameClock::new(),
-            ticks_us: TicksToUs::new(),
             last: FusedSample {
                 axes: [0; AXES],
                 used: [0; AXES],
@@ -214,9 +205,6 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             outbox: heapless::Deque::new(),
             cursor: Dumps::NEW,
             uptime_ms: 0,
-            arrival_us: None,
-            last_arrival_us: None,
-            time_gaps: 0,
             mode: Mode::Stream,
             time: TimeSync::NEW,
             nav: NavStage::NEW,
@@ -289,19 +277,19 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 
     /// Link statistics.
     pub fn link_counters(&self) -> &LinkCounters {
-        self.decoder.counters()
+        self.intake.decoder.counters()
     }
 
     /// Adds receive overruns reported by the platform's UART driver.
     pub fn note_link_overruns(&mut self, n: u32) {
-        self.decoder.note_overruns(n);
+        self.intake.decoder.note_overruns(n);
     }
 
     /// The platform dropped the link bytes it had buffered (after a CPU stall long enough for its DMA ring to lap,
     /// the ring holds bytes of different laps): the decoder's partial frame is forgotten and one overrun counted;
     /// the next frame's sequence gap counts the frames lost.
     pub fn link_discarded(&mut self) {
-        self.decoder.discard_partial();
+        self.intake.decoder.discard_partial();
     }
 
     /// Adds telemetry messages the platform could not send (its bus queue was full); reported in health as
@@ -316,7 +304,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     /// wrapped) — and [`Self::time_gaps`] counts it. Without it (replay of a log), time comes from the counter
     /// alone.
     pub fn set_arrival_us(&mut self, us: u64) {
-        self.arrival_us = Some(us);
+        self.intake.set_arrival_us(us);
     }
 
     /// The operating mode (`SetMode`).
@@ -326,7 +314,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 
     /// Outages bridged by arrival time (see [`Self::set_arrival_us`]).
     pub fn time_gaps(&self) -> u32 {
-        self.time_gaps
+        self.intake.time_gaps()
     }
 
     /// Sets the uptime reported in health (the platform's clock).
@@ -341,12 +329,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 
     /// Sample interval of the Allan accumulators, ps (`None` before the first frame).
     pub fn tau0_ps(&self) -> Option<u64> {
-        // n ≤ 2¹⁶, so n · 10¹⁵ < 2⁶⁷: cannot wrap; a rate of 0 counts as 1 millihertz.
-        let n = u128::from(self.clock.decimation()?).wrapping_add(1);
-        let rate = NonZeroU128::from(
-            NonZeroU64::new(self.config.fpga_base_rate_millihz).unwrap_or(NonZeroU64::MIN),
-        );
-        Some((n.wrapping_mul(1_000_000_000_000_000) / rate) as u64)
+        self.intake.tau0_ps(self.config.fpga_base_rate_millihz)
     }
 
     /// The fused sample of the last frame processed.
@@ -372,7 +355,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             // The frame is lent where it lies (`decode_with`): its ADC codes go straight into signed counts.
             let raw = &mut self.scratch.raw;
             let mut head = FrameHead::default();
-            let lent = self.decoder.decode_with(input, |frame| {
+            let lent = self.intake.decoder.decode_with(input, |frame| {
                 head = FrameHead {
                     decimation: frame.decimation(),
                     temp_cdeg: frame.temp_cdeg(),
@@ -455,10 +438,10 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         let fusion = self.fusion.config();
         HealthReport {
             uptime_ms: self.uptime_ms,
-            link: *self.decoder.counters(),
+            link: *self.intake.decoder.counters(),
             cal_id: self.cal.table.cal_id,
             cal_source: self.cal.source,
-            decimation: self.clock.decimation(),
+            decimation: self.intake.decimation(),
             frames_per_output: self.config.frames_per_output,
             fusion: fusion.mode,
             robust: fusion.robust,
@@ -484,60 +467,13 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         self.nav = NavStage::NEW;
     }
 
-    /// Frames lost before a frame at `decimation`: the sequence counter's count (`seq_gap`), unless the arrival gap
-    /// shows an outage the 16-bit counter cannot measure — an FPGA restart (the counter jumps back: the decoder's
-    /// restart), or a silence of 2¹⁶ frames or more (the counter wrapped: the arrival gap picks the multiple of
-    /// 2¹⁶). Buffering only makes arrivals later, so a backlog read late never shortens time, and the counter stays
-    /// exact for every gap it can see.
-    fn missing_before(&mut self, decimation: u16, seq_gap: SeqGap) -> u32 {
-        let by_seq = seq_gap.missing_before;
-        let (now, last) = (self.arrival_us, self.last_arrival_us);
-        self.last_arrival_us = now;
-        let (Some(now), Some(last), Some(n)) = (now, last, self.clock.decimation()) else {
-            return by_seq;
-        };
-        if n != decimation {
-            return by_seq; // a new rate: the clock restarts its statistics and ignores gaps anyway
-        }
-        // The arrival gap in frames, rounded: gap · rate / ((N + 1) · 10⁹), both sides in units of 10⁻⁹ base ticks
-        // (µs · millihertz). In u128 nothing can wrap: the gap is < 2⁶⁴ µs and the rate < 2⁶⁴ millihertz.
-        let gap = u128::from(now.saturating_sub(last))
-            .wrapping_mul(u128::from(self.config.fpga_base_rate_millihz));
-        let frame = u128::from(n).wrapping_add(1).wrapping_mul(1_000_000_000);
-        let rounded = gap.wrapping_add(frame >> 1);
-        let slack = u32::from(self.config.arrival_slack_frames);
-        // Without a restart, the arrival gap only matters once it could hide a wrap of the counter (the test
-        // below needs ≥ 2¹⁶ + 1 − slack frames): the usual frame ends here, without a 128-bit division.
-        let wrap_min = u128::from((1u32 << 16).wrapping_add(1).saturating_sub(slack));
-        if !seq_gap.restarted && rounded < wrap_min.wrapping_mul(frame) {
-            return by_seq;
-        }
-        // `frame` ≥ 10⁹: not zero.
-        let frames = rounded / NonZeroU128::new(frame).unwrap_or(NonZeroU128::MIN);
-        let by_time = u32::try_from(frames.saturating_sub(1)).unwrap_or(u32::MAX);
-        let missing = if seq_gap.restarted {
-            by_time
-        } else {
-            // The counter is right modulo 2¹⁶; time says how many wraps.
-            let wraps = by_time.saturating_sub(by_seq).saturating_add(slack) >> 16;
-            by_seq.saturating_add(wraps << 16)
-        };
-        if missing != by_seq {
-            self.time_gaps = self.time_gaps.wrapping_add(1);
-        }
-        missing
-    }
-
     /// One frame, whose signed counts `push_link` put into `scratch.raw`.
     fn process(&mut self, head: FrameHead, gap: SeqGap) {
-        let missing = self.missing_before(head.decimation, gap);
-        let tick = self.clock.advance_by(head.decimation, missing);
+        let tick = self.intake.advance(&self.config, head.decimation, gap);
+        let (missing, t_us) = (tick.missing, tick.t_us);
         if tick.rate_changed {
             self.restart_statistics();
         }
-        let t_us = self
-            .ticks_us
-            .us(tick.base_ticks, self.config.fpga_base_rate_millihz);
 
         // Loops into initialised arrays, not `array::map`: on the M4 (opt-level "s") the map's staging copies cost
         // 3.0 k instructions per frame, the loop 0.8 k (`mcu-bench`); at opt-level 2 `from_fn` and `each_ref().map`
@@ -571,7 +507,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             .0
             .push_parts(self.scratch.axes.as_flattened(), &self.fused_hold);
 
-        self.time.frame(t_us, self.arrival_us);
+        self.time.frame(t_us, self.intake.arrival_us());
         self.avg.add(&self.last, head.temp_cdeg, t_us);
         if self.avg.frames >= self.config.frames_per_output.max(1) {
             let report = self.avg.report(self.out_seq, self.time.epoch_us());
@@ -711,12 +647,14 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 mod averager;
 mod calibration;
 mod dump;
+mod intake;
 mod nav_stage;
 mod time_sync;
 
 use averager::Averager;
 use calibration::Calibration;
 use dump::Dumps;
+use intake::Intake;
 use nav_stage::NavStage;
 pub use time_sync::PPS_TOLERANCE_US;
 use time_sync::TimeSync;

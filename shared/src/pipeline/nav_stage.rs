@@ -1,10 +1,10 @@
 //! The navigation stage: the fused samples integrated into the increments of each output interval
 //! ([`crate::nav::NavIntegrator`], sent as [`NavReport`] after every `Fused` report).
 
+use super::intake::Intake;
 use crate::fuse::FusedSample;
 use crate::nav::NavIntegrator;
 use crate::telemetry::NavReport;
-use crate::wire::FrameClock;
 
 /// The integrator and the interval it covers.
 #[derive(Clone, Copy, Debug)]
@@ -58,8 +58,8 @@ impl NavStage {
     pub(super) fn report(&mut self, seq: u32, end: u64, rate_millihz: u64) -> NavReport {
         let inc = self.nav.take();
         let start = self.start_ticks.replace(end).unwrap_or(end);
-        let t_us = FrameClock::ticks_to_us(start, rate_millihz);
-        let dt_us = FrameClock::ticks_to_us(end, rate_millihz).saturating_sub(t_us);
+        let t_us = Intake::ticks_to_us(start, rate_millihz);
+        let dt_us = Intake::ticks_to_us(end, rate_millihz).saturating_sub(t_us);
         // f32 → i64 casts saturate: a value beyond ±9.2e18 nrad cannot occur in one interval.
         NavReport {
             seq,
