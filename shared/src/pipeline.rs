@@ -23,11 +23,8 @@
 use crate::allan::AllanSet;
 use crate::calib::thermal::ThermalComp;
 use crate::calib::{AXES, CalibrationTable, RawCounts, encoded_len_max};
-use crate::fuse::{FaultCounts, FusedSample, Fusion, FusionConfig, FusionMode, HealthMask};
-use crate::telemetry::{
-    Ack, CalSource, Command, CommandEnvelope, DecodeError, HealthReport, Mode, PpsReport, Reject,
-    Telemetry, TimeReport, decode, peek_tag,
-};
+use crate::fuse::{FusedSample, Fusion, FusionConfig, FusionMode, HealthMask};
+use crate::telemetry::{CalSource, Mode, Telemetry};
 use crate::wire::frame::{FRAME_LEN, GROUPS};
 use crate::wire::{FpgaControl, LinkCounters, SeqGap};
 use core::borrow::BorrowMut;
@@ -369,47 +366,6 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         }
     }
 
-    /// Handles one command message (the payload of a bus packet); the ack (and any data) follow in `poll`.
-    pub fn handle_command(&mut self, bytes: &[u8]) {
-        let tag = peek_tag(bytes);
-        let mut commit = false;
-        let result = match decode::<CommandEnvelope>(bytes) {
-            Err(DecodeError::Version(v)) => Err(Reject::Version(v)),
-            Err(_) => Err(Reject::Malformed),
-            Ok(env) => {
-                commit = matches!(env.cmd, Command::CalCommit);
-                self.execute(env.cmd)
-            }
-        };
-        if commit && result.is_ok() {
-            // The ack waits for the store (`calibration_persisted`).
-            self.push(Output::PersistCalibration { tag });
-            return;
-        }
-        self.count_command(&result);
-        // The ack goes ahead of any data the command produced.
-        let ack = Output::Telemetry(Telemetry::Ack(Ack { tag, result }));
-        if self.outbox.push_front(ack).is_err() {
-            self.telemetry_dropped = self.telemetry_dropped.wrapping_add(1);
-        }
-    }
-
-    /// The outcome of the store that [`Output::PersistCalibration`] asked for; returns the `CalCommit`'s ack
-    /// (`Reject::Storage` when the store failed: the table stays in force until the next reset, which will not
-    /// find it), for the platform to send.
-    pub fn calibration_persisted(&mut self, tag: u16, stored: bool) -> Ack {
-        let result = if stored { Ok(()) } else { Err(Reject::Storage) };
-        self.count_command(&result);
-        Ack { tag, result }
-    }
-
-    fn count_command(&mut self, result: &Result<(), Reject>) {
-        let i = usize::from(result.is_err());
-        if let Some(c) = self.commands.get_mut(i) {
-            *c = c.wrapping_add(1);
-        }
-    }
-
     /// The next queued output (telemetry of frames and commands, FPGA control, persist), if any.
     pub fn poll(&mut self) -> Option<Output> {
         self.outbox.pop_front()
@@ -422,37 +378,6 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         let tau0_ps = self.tau0_ps().unwrap_or(0);
         self.cursor
             .next(&self.fusion, &self.allan.borrow().0, tau0_ps)
-    }
-
-    /// A health report now.
-    pub fn health(&self) -> HealthReport {
-        let mut faults = [FaultCounts::default(); 2];
-        for g in 0..GROUPS {
-            for (sum, c) in faults
-                .iter_mut()
-                .zip(self.fusion.fault_counts(g).unwrap_or_default())
-            {
-                sum.add(&c);
-            }
-        }
-        let fusion = self.fusion.config();
-        HealthReport {
-            uptime_ms: self.uptime_ms,
-            link: *self.intake.decoder.counters(),
-            cal_id: self.cal.table.cal_id,
-            cal_source: self.cal.source,
-            decimation: self.intake.decimation(),
-            frames_per_output: self.config.frames_per_output,
-            fusion: fusion.mode,
-            robust: fusion.robust,
-            faults,
-            invalid_frames: self.invalid_frames,
-            allan_samples: self.allan.borrow().0.samples(),
-            telemetry_dropped: self.telemetry_dropped,
-            commands: self.commands,
-            temp: self.cal.thermal.counts(),
-            thermal_at_cdeg: self.cal.thermal.applied_cdeg(),
-        }
     }
 
     fn push(&mut self, o: Output) {
@@ -534,21 +459,6 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         }
     }
 
-    /// One frame into the navigation increments (see [`NavStage::add_frame`]).
-    fn integrate(&mut self, decimation: u16, missing: u32, base_ticks: u64) {
-        let dt_s = f32::from(decimation) + 1.0;
-        let dt_s = dt_s * 1000.0 / self.config.fpga_base_rate_millihz.max(1) as f32;
-        self.nav.add_frame(&self.last, dt_s, missing, base_ticks);
-    }
-
-    /// The interval's [`NavReport`], ending at frame-clock tick `end`.
-    fn push_nav(&mut self, seq: u32, end: u64) {
-        let report = self
-            .nav
-            .report(seq, end, self.config.fpga_base_rate_millihz);
-        self.push(Output::Telemetry(Telemetry::Nav(report)));
-    }
-
     /// A [`TimeReport`] after the time was set: the last frame's time on both scales; and the PPS counters once an
     /// edge was seen.
     fn push_time(&mut self) {
@@ -559,94 +469,13 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             self.push(Output::Telemetry(Telemetry::Pps(pps)));
         }
     }
-
-    /// A PPS edge at `edge_us` on the arrival clock ([`Self::set_arrival_us`]'s): the spacecraft's whole second
-    /// (see [`TimeSync::pps`]). Returns the correction, µs; `None` if the edge was refused (counted).
-    pub fn pps(&mut self, edge_us: u64) -> Option<i64> {
-        self.time.pps(edge_us)
-    }
-
-    /// The PPS discipline's counters.
-    pub fn pps_report(&self) -> PpsReport {
-        self.time.pps_report()
-    }
-
-    /// The correlation of frame time and spacecraft time, once `SetTime` was received.
-    pub fn time_report(&self) -> Option<TimeReport> {
-        self.time.report()
-    }
-
-    fn execute(&mut self, cmd: Command) -> Result<(), Reject> {
-        match cmd {
-            Command::Ping => {}
-            Command::SetTime { unix_us } => {
-                self.time.set_time(unix_us);
-                self.push_time();
-            }
-            Command::SetDecimation(n) => {
-                if !self.config.link_carries(n) {
-                    return Err(Reject::BadArgument);
-                }
-                self.push(Output::Fpga(FpgaControl::SetDecimation(n)))
-            }
-            Command::SetOutputRate(l) => {
-                if !(1..=MAX_FRAMES_PER_OUTPUT).contains(&l) {
-                    return Err(Reject::BadArgument);
-                }
-                self.config.frames_per_output = l;
-                self.avg = Averager::NEW;
-            }
-            Command::SetMode(mode) => {
-                self.mode = mode;
-                self.push(Output::Fpga(FpgaControl::SetStreaming(
-                    mode == Mode::Stream,
-                )));
-            }
-            Command::ExcludeGroups { gyro, accel } => {
-                let all = u32::MAX
-                    .checked_shr(32u32.saturating_sub(GROUPS as u32))
-                    .unwrap_or(0);
-                if (gyro | accel) & !all != 0 {
-                    return Err(Reject::BadArgument);
-                }
-                self.fusion.set_config(FusionConfig {
-                    excluded: [gyro, accel],
-                    ..*self.fusion.config()
-                });
-            }
-            Command::SetFusion { mode, robust } => {
-                if mode == FusionMode::Fixed && !self.cal.table.has_weights() {
-                    return Err(Reject::BadArgument);
-                }
-                self.fusion.set_config(FusionConfig {
-                    mode,
-                    robust,
-                    ..*self.fusion.config()
-                });
-            }
-            Command::CalBegin { len, crc } => self.cal.begin(len, crc)?,
-            Command::CalChunk { offset, data } => self.cal.chunk(offset, &data)?,
-            Command::CalCommit => {
-                self.cal.commit()?;
-                self.calibration_changed(CalSource::Uploaded);
-            }
-            Command::AllanRequest { first, count } => self.cursor.start_allan(first, count)?,
-            Command::AllanReset => self.allan.borrow_mut().0.reset(),
-            Command::HealthRequest { detail } => {
-                let h = self.health();
-                self.push(Output::Telemetry(Telemetry::Health(h)));
-                if detail {
-                    self.cursor.start_faults();
-                }
-            }
-        }
-        Ok(())
-    }
 }
 
 mod averager;
 mod calibration;
+mod commands;
 mod dump;
+mod health;
 mod intake;
 mod nav_stage;
 mod time_sync;

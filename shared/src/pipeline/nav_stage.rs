@@ -2,9 +2,12 @@
 //! ([`crate::nav::NavIntegrator`], sent as [`NavReport`] after every `Fused` report).
 
 use super::intake::Intake;
+use super::{AllanBank, Output, Pipeline};
 use crate::fuse::FusedSample;
 use crate::nav::NavIntegrator;
 use crate::telemetry::NavReport;
+use crate::telemetry::Telemetry;
+use core::borrow::BorrowMut;
 
 /// The integrator and the interval it covers.
 #[derive(Clone, Copy, Debug)]
@@ -71,5 +74,22 @@ impl NavStage {
             bridged: u16::try_from(inc.bridged).unwrap_or(u16::MAX),
             clipped: core::mem::take(&mut self.clipped),
         }
+    }
+}
+
+impl<B: BorrowMut<AllanBank>> Pipeline<B> {
+    /// One frame into the navigation increments (see [`NavStage::add_frame`]).
+    pub(super) fn integrate(&mut self, decimation: u16, missing: u32, base_ticks: u64) {
+        let dt_s = f32::from(decimation) + 1.0;
+        let dt_s = dt_s * 1000.0 / self.config.fpga_base_rate_millihz.max(1) as f32;
+        self.nav.add_frame(&self.last, dt_s, missing, base_ticks);
+    }
+
+    /// The interval's [`NavReport`], ending at frame-clock tick `end`.
+    pub(super) fn push_nav(&mut self, seq: u32, end: u64) {
+        let report = self
+            .nav
+            .report(seq, end, self.config.fpga_base_rate_millihz);
+        self.push(Output::Telemetry(Telemetry::Nav(report)));
     }
 }

@@ -2,7 +2,8 @@ use super::*;
 use crate::calib::{AZ, board};
 use crate::crc::crc32c;
 use crate::telemetry::{
-    AllanReport, CAL_CHUNK_MAX, FaultReport, FusedReport, NavReport, PROTOCOL_VERSION, encode,
+    Ack, AllanReport, CAL_CHUNK_MAX, Command, CommandEnvelope, FaultReport, FusedReport, NavReport,
+    PROTOCOL_VERSION, Reject, TimeReport, encode,
 };
 use crate::testutil::{Rng, rms};
 use crate::wire::FrameRepr;

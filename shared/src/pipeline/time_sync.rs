@@ -1,7 +1,9 @@
 //! Frame time and spacecraft time: the epoch `SetTime` sets, PPS edges that re-anchor it on the whole second, and
 //! the reports of both.
 
+use super::{AllanBank, Pipeline};
 use crate::telemetry::{PpsReport, TimeReport};
+use core::borrow::BorrowMut;
 
 /// A PPS edge is accepted only within this distance of a whole second of the current spacecraft time: it absorbs
 /// the `SetTime` latency (the first edge) and the frame clock's drift over a second, and refuses glitches.
@@ -119,5 +121,23 @@ impl TimeSync {
             t_us,
             unix_us: t_us.wrapping_add(epoch),
         })
+    }
+}
+
+impl<B: BorrowMut<AllanBank>> Pipeline<B> {
+    /// A PPS edge at `edge_us` on the arrival clock ([`Self::set_arrival_us`]'s): the spacecraft's whole second
+    /// (see [`TimeSync::pps`]). Returns the correction, µs; `None` if the edge was refused (counted).
+    pub fn pps(&mut self, edge_us: u64) -> Option<i64> {
+        self.time.pps(edge_us)
+    }
+
+    /// The PPS discipline's counters.
+    pub fn pps_report(&self) -> PpsReport {
+        self.time.pps_report()
+    }
+
+    /// The correlation of frame time and spacecraft time, once `SetTime` was received.
+    pub fn time_report(&self) -> Option<TimeReport> {
+        self.time.report()
     }
 }

@@ -1,0 +1,39 @@
+//! Health: the report of the core's counters, periodic and on request.
+
+use super::{AllanBank, GROUPS, Pipeline};
+use crate::fuse::FaultCounts;
+use crate::telemetry::HealthReport;
+use core::borrow::BorrowMut;
+
+impl<B: BorrowMut<AllanBank>> Pipeline<B> {
+    /// A health report now.
+    pub fn health(&self) -> HealthReport {
+        let mut faults = [FaultCounts::default(); 2];
+        for g in 0..GROUPS {
+            for (sum, c) in faults
+                .iter_mut()
+                .zip(self.fusion.fault_counts(g).unwrap_or_default())
+            {
+                sum.add(&c);
+            }
+        }
+        let fusion = self.fusion.config();
+        HealthReport {
+            uptime_ms: self.uptime_ms,
+            link: *self.intake.decoder.counters(),
+            cal_id: self.cal.table.cal_id,
+            cal_source: self.cal.source,
+            decimation: self.intake.decimation(),
+            frames_per_output: self.config.frames_per_output,
+            fusion: fusion.mode,
+            robust: fusion.robust,
+            faults,
+            invalid_frames: self.invalid_frames,
+            allan_samples: self.allan.borrow().0.samples(),
+            telemetry_dropped: self.telemetry_dropped,
+            commands: self.commands,
+            temp: self.cal.thermal.counts(),
+            thermal_at_cdeg: self.cal.thermal.applied_cdeg(),
+        }
+    }
+}
