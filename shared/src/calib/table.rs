@@ -104,12 +104,8 @@ pub struct CalibrationTable<const G: usize> {
 
 /// One piece of a table as [`walk`] reads it.
 enum Piece {
-    Head {
-        cal_id: u32,
-        raw_min: i32,
-        raw_max: i32,
-        t_ref_cdeg: i16,
-    },
+    /// `cal_id`, `raw_min`, `raw_max`, `t_ref_cdeg`.
+    Head(u32, i32, i32, i16),
     Group(usize, GroupCal),
     Thermal(usize, GroupThermal),
     Weights(usize, [i32; AXES]),
@@ -155,12 +151,7 @@ fn walk<const G: usize>(bytes: &[u8], mut f: impl FnMut(Piece)) -> Result<(), Ca
         f(Piece::Group(g, cal));
     }
     let t_ref_cdeg = if v1 { 0 } else { take(&mut rest)? };
-    f(Piece::Head {
-        cal_id,
-        raw_min,
-        raw_max,
-        t_ref_cdeg,
-    });
+    f(Piece::Head(cal_id, raw_min, raw_max, t_ref_cdeg));
     for g in 0..G {
         f(Piece::Thermal(
             g,
@@ -290,16 +281,15 @@ impl<const G: usize> CalibrationTable<G> {
         walk::<G>(bytes, |piece| equal &= self.has(&piece)).is_ok() && equal
     }
 
+    /// The table's scalar fields, as [`Piece::Head`] carries them.
+    fn head(&self) -> (u32, i32, i32, i16) {
+        (self.cal_id, self.raw_min, self.raw_max, self.t_ref_cdeg)
+    }
+
     fn set(&mut self, piece: Piece) {
         match piece {
-            Piece::Head {
-                cal_id,
-                raw_min,
-                raw_max,
-                t_ref_cdeg,
-            } => {
-                (self.cal_id, self.raw_min, self.raw_max, self.t_ref_cdeg) =
-                    (cal_id, raw_min, raw_max, t_ref_cdeg)
+            Piece::Head(id, min, max, t_ref) => {
+                (self.cal_id, self.raw_min, self.raw_max, self.t_ref_cdeg) = (id, min, max, t_ref)
             }
             Piece::Group(g, cal) => {
                 if let Some(slot) = self.groups.get_mut(g) {
@@ -321,15 +311,7 @@ impl<const G: usize> CalibrationTable<G> {
 
     fn has(&self, piece: &Piece) -> bool {
         match *piece {
-            Piece::Head {
-                cal_id,
-                raw_min,
-                raw_max,
-                t_ref_cdeg,
-            } => {
-                (self.cal_id, self.raw_min, self.raw_max, self.t_ref_cdeg)
-                    == (cal_id, raw_min, raw_max, t_ref_cdeg)
-            }
+            Piece::Head(id, min, max, t_ref) => self.head() == (id, min, max, t_ref),
             Piece::Group(g, ref cal) => self.groups.get(g) == Some(cal),
             Piece::Thermal(g, ref th) => self.thermal.get(g) == Some(th),
             Piece::Weights(g, ref w) => self.weights_q16.get(g) == Some(w),
