@@ -165,14 +165,15 @@ pub fn link_warning(path: &Path, c: &shared::wire::LinkCounters, output: &str) -
 /// As [`load_with`], for a consumer of only the sensor columns `columns` (all when empty) and the cluster means: a
 /// `.npy` array (known by its extension) then materialises only those columns, and computes the cluster mean of
 /// every axis over all its groups in the same pass (returned, equal to `adev::cluster_mean` of the whole
-/// recording); any other input is loaded whole (`None`: the recording holds every column).
+/// recording, while each block of the file is in the cache); any other input is loaded whole (`None`: the
+/// recording holds every column).
 pub fn load_selected(
     path: &Path,
     cal: Option<&Calibration>,
     base_rate_millihz: u64,
     columns: &[String],
 ) -> Result<(Loaded, Option<Vec<AxisMean>>)> {
-    if columns.is_empty() || !matches!(detect(path, &[]), Ok(InputKind::Npy)) {
+    if !matches!(detect(path, &[]), Ok(InputKind::Npy)) {
         return Ok((load_with(path, cal, base_rate_millihz)?, None));
     }
     refuse_npy_calibration(path, cal)?;

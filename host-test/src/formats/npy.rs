@@ -450,36 +450,25 @@ impl<'a> NpyArray<'a> {
             |(buf, scratch): &mut (Vec<u8>, Vec<f64>), (b, mut chunks)| {
                 let row0 = b * block_rows;
                 let n = chunks.first().map_or(0, |c| c.len());
-                if means {
+                let (kept, avg) = chunks.split_at_mut(wanted.len());
+                if !means {
+                    self.read_block(row0, read, kept, buf)?;
+                    note_bad(&bad, read, kept, row0);
+                } else if wanted.len() == self.cols {
+                    // Every column is kept: the means from the block just read, while it is in the cache.
+                    self.read_block(row0, read, kept, buf)?;
+                    note_bad(&bad, read, kept, row0);
+                    self.block_means(kept, avg);
+                } else {
                     // Every column of the block into `scratch`, then the wanted ones and the means from it.
                     scratch.resize(n * self.cols, 0.0);
                     let mut cols: Vec<&mut [f64]> = scratch.chunks_mut(n).collect();
                     self.read_block(row0, read, &mut cols, buf)?;
-                    let (kept, avg) = chunks.split_at_mut(wanted.len());
+                    note_bad(&bad, read, &cols, row0);
                     for (&j, chunk) in wanted.iter().zip(kept.iter_mut()) {
                         chunk.copy_from_slice(cols[j]);
                     }
-                    for (m, chunk) in avg.iter_mut().enumerate() {
-                        // Mean m is of column m of every group (gx gy gz ax ay az), added column by column in
-                        // group order, then divided: the sums `adev::cluster_mean` makes.
-                        let members = (0..self.groups()).map(|g| 1 + PER_GROUP * g + m);
-                        for (k, j) in members.enumerate() {
-                            if k == 0 {
-                                chunk.copy_from_slice(cols[j]);
-                            } else {
-                                chunk
-                                    .iter_mut()
-                                    .zip(cols[j].iter())
-                                    .for_each(|(s, x)| *s += x);
-                            }
-                        }
-                        let groups = self.groups() as f64;
-                        chunk.iter_mut().for_each(|s| *s /= groups);
-                    }
-                    note_bad(&bad, read, &cols, row0);
-                } else {
-                    self.read_block(row0, read, &mut chunks, buf)?;
-                    note_bad(&bad, read, &chunks, row0);
+                    self.block_means(&cols, avg);
                 }
                 Ok::<_, String>(())
             },
@@ -500,6 +489,26 @@ impl<'a> NpyArray<'a> {
             ));
         }
         Ok((out, mean_out))
+    }
+
+    /// The cluster means of a block: `avg[m]` = the mean over the groups of `cols[1 + 6·g + m]` (every array
+    /// column of the block, `t` first), added column by column in group order, then divided: the sums
+    /// `adev::cluster_mean` makes.
+    fn block_means<C: AsRef<[f64]>>(&self, cols: &[C], avg: &mut [&mut [f64]]) {
+        let groups = self.groups();
+        for (m, chunk) in avg.iter_mut().enumerate() {
+            for g in 0..groups {
+                let c = cols
+                    .get(1 + PER_GROUP * g + m)
+                    .map_or(&[][..], |c| c.as_ref());
+                if g == 0 {
+                    chunk.copy_from_slice(c);
+                } else {
+                    chunk.iter_mut().zip(c).for_each(|(s, x)| *s += x);
+                }
+            }
+            chunk.iter_mut().for_each(|s| *s /= groups as f64);
+        }
     }
 
     /// Fills `chunks[k]` (rows `row0 …` of array column `wanted[k]`) from the file; `buf` is this core's block.

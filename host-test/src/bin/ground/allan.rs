@@ -71,15 +71,15 @@ pub fn run(a: Args) -> Result<()> {
     let t0 = std::time::Instant::now();
     let cal = any_calib(&a.calib)?;
     let pb = spinner("reading");
-    // Only the requested columns, the cluster means computed while reading, where the input allows (a .npy
+    // Only the requested columns, and the cluster means computed while reading, where the input allows (a .npy
     // array; not with a window, which the means would have to follow).
-    let only = if a.all || a.window.is_some() {
-        Vec::new()
+    let (mut loaded, means) = if a.window.is_some() {
+        let all = load::load_with(&a.recording, cal.as_ref(), FPGA_BASE_RATE_MILLIHZ)?;
+        (all, None)
     } else {
-        a.columns.clone()
+        let only = if a.all { &[][..] } else { &a.columns[..] };
+        load::load_selected(&a.recording, cal.as_ref(), FPGA_BASE_RATE_MILLIHZ, only)?
     };
-    let (mut loaded, means) =
-        load::load_selected(&a.recording, cal.as_ref(), FPGA_BASE_RATE_MILLIHZ, &only)?;
     pb.finish_and_clear();
     print_loaded(&loaded);
     if let Some(w) = &a.window {

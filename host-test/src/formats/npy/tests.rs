@@ -270,8 +270,14 @@ fn allan_of_the_npy_equals_allan_of_the_csv() {
     }
     assert_eq!(allan(&npy_c), from_csv);
     assert_eq!(allan(&npy_f), from_csv);
-    // One column, the means from the reader.
+    // One column, the means from the reader; and all columns, the means from each block as it is read.
     for path in [&npy_c, &npy_f] {
+        let (loaded, means) = crate::load::load_selected(path, None, 0, &[]).unwrap();
+        assert_eq!(loaded.recording, rec);
+        for m in means.unwrap() {
+            let (data, n) = adev::cluster_mean(&rec, m.kind, m.axis).unwrap();
+            assert_eq!((m.data, m.members), (data, n));
+        }
         let one = vec!["g01y".to_string()];
         let (loaded, means) = crate::load::load_selected(path, None, 0, &one).unwrap();
         assert_eq!(loaded.recording.columns.len(), 1);
