@@ -1,14 +1,22 @@
 #!/usr/bin/env bash
 # Side-by-side: `ground allan` vs allantools on the same paper-size file (545,410 samples × 96 sensor columns +
-# 6 cluster means = 102 series, octave OADEV). Generates the file with `ground simulate` if it is missing.
-# Needs: pip install allantools==2024.6 pandas. Usage: host-test/scripts/bench_allan.sh [FILE.csv]
+# 6 cluster means = 102 series, octave OADEV). Generates the CSV with `ground simulate` if it is missing; a .npy
+# (t, then gx gy gz ax ay az per group) is made from it with numpy when FILE.npy is asked for and missing.
+# Needs: pip install allantools==2024.6 pandas. Usage: host-test/scripts/bench_allan.sh [FILE.csv|FILE.npy]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 rec=${1:-target/bench/seed8h.csv}
 mkdir -p target/bench
 cargo build --release -q -p host-test --bin ground
+csv=${rec%.npy}
+[ "$csv" = "$rec" ] || csv=$csv.csv
+if [ ! -f "$csv" ] && [ ! -f "$rec" ]; then
+  ./target/release/ground simulate --preset seed --out "$csv"
+fi
 if [ ! -f "$rec" ]; then
-  ./target/release/ground simulate --preset seed --out "$rec"
+  python3 -c 'import sys, pandas as pd, numpy as np
+df = pd.read_csv(sys.argv[1], engine="c")
+np.save(sys.argv[2], df[[c for c in df.columns if c != "temp_c"]].to_numpy(dtype="<f8"))' "$csv" "$rec"
 fi
 ls -l "$rec"
 echo "== ground allan (octave OADEV + noise id + Greenhall EDF + 68 % CI + noise fit, all cores)"

@@ -3,7 +3,7 @@
 //! noise-term fit, the equal-weight independence expectation, and Kalibr's `imu.yaml`.
 
 use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options, TauSpec};
-use crate::formats::csv::{AXIS_NAMES, Recording, SensorKind};
+use crate::formats::csv::{AXIS_NAMES, AxisMean, Recording, SensorKind};
 use crate::noisefit::{self, NoiseFit};
 use rayon::prelude::*;
 use std::fmt::Write as _;
@@ -117,6 +117,18 @@ pub fn analyze(
     req: &AdevRequest,
     tick: &(dyn Fn() + Sync),
 ) -> Result<Vec<Series>, String> {
+    analyze_with_means(rec, None, req, tick)
+}
+
+/// As [`analyze`], with the cluster means already computed when `means` is given (by a reader that streams the
+/// file, `formats::npy`; `rec` then needs to hold only the requested columns): they replace [`cluster_mean`] of
+/// `rec`.
+pub fn analyze_with_means(
+    rec: &Recording,
+    means: Option<Vec<AxisMean>>,
+    req: &AdevRequest,
+    tick: &(dyn Fn() + Sync),
+) -> Result<Vec<Series>, String> {
     let tau0 = rec
         .sample_interval_s()
         .ok_or("fewer than two samples, or time not increasing")?;
@@ -145,10 +157,17 @@ pub fn analyze(
             .into_iter()
             .flat_map(|kind| (0..3).map(move |axis| (kind, axis)))
             .collect();
-        let means: Vec<_> = axes
-            .into_par_iter()
-            .filter_map(|(kind, axis)| Some((kind, axis, cluster_mean(rec, kind, axis)?)))
-            .collect();
+        let means: Vec<_> = match means {
+            Some(m) => m
+                .into_iter()
+                .filter(|m| m.members > 0)
+                .map(|m| (m.kind, m.axis, (m.data, m.members)))
+                .collect(),
+            None => axes
+                .into_par_iter()
+                .filter_map(|(kind, axis)| Some((kind, axis, cluster_mean(rec, kind, axis)?)))
+                .collect(),
+        };
         for (kind, axis, (data, n)) in means {
             jobs.push((
                 mean_label(kind, axis),

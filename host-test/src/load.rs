@@ -3,7 +3,7 @@
 //! within its first bytes) or MIMU4444 stream (a valid 0xAA frame within its first bytes), and reads calibration
 //! files of either array (16 groups: our board; 8 IMUs: the MIMU4444) in any of their forms (.bin, .json, .toml).
 
-use crate::formats::csv::Recording;
+use crate::formats::csv::{AxisMean, Recording};
 use crate::formats::framelog::FrameLog;
 use anyhow::{Context, Result, bail};
 use shared::calib::CalibrationTable;
@@ -162,6 +162,54 @@ pub fn link_warning(path: &Path, c: &shared::wire::LinkCounters, output: &str) -
     (!parts.is_empty()).then(|| format!("{}: {}", path.display(), parts.join("; ")))
 }
 
+/// As [`load_with`], for a consumer of only the sensor columns `columns` (all when empty) and the cluster means: a
+/// `.npy` array (known by its extension) then materialises only those columns, and computes the cluster mean of
+/// every axis over all its groups in the same pass (returned, equal to `adev::cluster_mean` of the whole
+/// recording, while each block of the file is in the cache); any other input is loaded whole (`None`: the
+/// recording holds every column).
+pub fn load_selected(
+    path: &Path,
+    cal: Option<&Calibration>,
+    base_rate_millihz: u64,
+    columns: &[String],
+) -> Result<(Loaded, Option<Vec<AxisMean>>)> {
+    if !matches!(detect(path, &[]), Ok(InputKind::Npy)) {
+        return Ok((load_with(path, cal, base_rate_millihz)?, None));
+    }
+    refuse_npy_calibration(path, cal)?;
+    let array = crate::formats::npy::NpyArray::open(path)?;
+    let (recording, means) = array
+        .recording_with_means(columns)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let loaded = Loaded {
+        recording,
+        notes: npy_notes(path, &array),
+        warnings: Vec::new(),
+    };
+    Ok((loaded, Some(means)))
+}
+
+/// A `.npy` array holds calibrated values: an error when a calibration is given.
+fn refuse_npy_calibration(path: &Path, cal: Option<&Calibration>) -> Result<()> {
+    if cal.is_some() {
+        bail!(
+            "{}: a .npy array holds calibrated values (°/s, g); a calibration applies only to raw recordings (FPGA \
+             frame log, MIMU4444 stream)",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+/// The note on a `.npy` array's conversion, if its values were converted.
+fn npy_notes(path: &Path, array: &crate::formats::npy::NpyArray) -> Vec<String> {
+    array
+        .conversion()
+        .map(|c| format!("{}: {c}", path.display()))
+        .into_iter()
+        .collect()
+}
+
 /// Loads a recording; raw formats go through `cal` (the factory default of our board, or the MIMU4444's nominal
 /// scales, when `None`).
 pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_millihz: u64) -> Result<Loaded> {
@@ -191,22 +239,19 @@ pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_millihz: u64)
             })
         }
         InputKind::Npy => {
-            if cal.is_some() {
-                bail!(
-                    "{}: a .npy array holds calibrated values (°/s, g); a calibration applies only to raw \
-                     recordings (FPGA frame log, MIMU4444 stream)",
-                    path.display()
-                );
-            }
-            let recording = if bytes.is_empty() {
-                crate::formats::npy::read(path)?
+            refuse_npy_calibration(path, cal)?;
+            let array = if bytes.is_empty() {
+                crate::formats::npy::NpyArray::open(path)?
             } else {
-                crate::formats::npy::parse(&bytes[..])
+                crate::formats::npy::NpyArray::from_bytes(&bytes)
                     .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
             };
+            let recording = array
+                .recording()
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
             Ok(Loaded {
                 recording,
-                notes: Vec::new(),
+                notes: npy_notes(path, &array),
                 warnings: Vec::new(),
             })
         }

@@ -105,6 +105,20 @@ impl Column {
     }
 }
 
+/// The equal-weight cluster mean of one sensor axis over the groups, row by row (what `adev::cluster_mean` computes
+/// from a recording; a reader that streams the file can compute it without keeping every column).
+#[derive(Clone, Debug, PartialEq)]
+pub struct AxisMean {
+    /// Gyro or accelerometer.
+    pub kind: SensorKind,
+    /// 0, 1, 2 for x, y, z.
+    pub axis: usize,
+    /// Groups averaged.
+    pub members: usize,
+    /// The mean, °/s or g, one value per sample.
+    pub data: Vec<f64>,
+}
+
 /// `g03z` for (Gyro, 3, 2).
 pub fn column_name(kind: SensorKind, group: usize, axis: usize) -> String {
     format!(

@@ -7,4 +7,4 @@ pub mod framelog;
 pub mod npy;
 pub mod telemetry;
 
-pub use csv::{Column, Recording, SensorKind};
+pub use csv::{AxisMean, Column, Recording, SensorKind};

@@ -1,113 +1,587 @@
 //! NumPy `.npy` input: what numpy and allantools users already have, read as binary (no text parsing).
 //!
-//! The array is 2-D, `float64` or `float32` (either byte order, C or Fortran order), of shape `(samples, 1 + 6·G)`:
-//! column 0 the time `t` in seconds, then per sensor group `gx gy gz` in °/s and `ax ay az` in g — the interchange
-//! CSV's columns in its order, without `temp_c` (`np.save("rec.npy", np.column_stack([t, g00x, g00y, …]))`). As in
-//! the CSV every value must be finite and `t` must increase; anything else is an error naming the row and column.
+//! The array is 2-D of shape `(samples, 1 + 6·G)`, C or Fortran order: column 0 the time `t` in seconds, then per
+//! sensor group `gx gy gz` in °/s and `ax ay az` in g — the interchange CSV's columns in its order, without `temp_c`
+//! (`np.save("rec.npy", np.column_stack([t, g00x, g00y, …]))`). As in the CSV every value must be finite and `t`
+//! must increase; anything else is an error naming the row and column.
+//!
+//! Element types: little-endian `float64` and `float32` are read as they are; little-endian (or single-byte)
+//! integers and booleans are converted to `float64`, and [`NpyArray::conversion`] says so. Big-endian arrays are
+//! refused (`arr.astype('<f8')` converts them), and so are object arrays (pickled Python objects: reading them
+//! would mean running a pickle), complex, string, date and structured arrays.
+//!
+//! How it is read: the header is parsed by the `npyz` crate; the data is then read once, straight from the file at
+//! computed offsets (`pread`), in blocks of about 256 KiB of the array, on all cores, and each block is decoded into
+//! only the requested columns' final vectors (a `float64` column of a Fortran-order array is read directly into its
+//! vector: its bytes are its values). Nothing else holds the array: the peak memory is the requested columns plus
+//! one block per core. The values are checked while the block is still in the cache. Not mapped: `host-test`
+//! forbids `unsafe`, and `memmap2::Mmap::map` is `unsafe` (the file may change under the mapping); besides, a
+//! mapped C-order array stays resident next to the columns taken out of it, which doubles the peak memory.
 
-use super::csv::{Recording, SensorKind, column_name};
-use std::io::Read;
+use super::csv::{AxisMean, Column, Recording, SensorKind, column_name};
+use npyz::{DType, TypeChar};
+use rayon::prelude::*;
 use std::path::Path;
 
 /// Sensor columns per group: gyro x y z, accel x y z.
 const PER_GROUP: usize = 6;
 
-/// Reads a `.npy` file (see module docs).
-pub fn read(path: &Path) -> anyhow::Result<Recording> {
-    let file = std::fs::File::open(path)
-        .map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
-    parse(std::io::BufReader::new(file)).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+/// Bytes of the array read and decoded at once by one core (a block stays in the L2 cache).
+const BLOCK_BYTES: usize = 1 << 18;
+
+/// The first bytes of every `.npy` file.
+const MAGIC: &[u8] = b"\x93NUMPY";
+
+/// Where the bytes are: an open file (read at offsets) or a buffer.
+enum Source<'a> {
+    File(std::fs::File, u64),
+    Bytes(&'a [u8]),
 }
 
-/// Parses `.npy` bytes from `r` (see module docs); the error says what is wrong and where.
-pub fn parse(r: impl Read) -> Result<Recording, String> {
-    let npy = npyz::NpyFile::new(r).map_err(|e| format!("not a readable .npy file: {e}"))?;
-    let (rows, cols) = match npy.shape() {
-        &[rows, cols] => (rows, cols),
-        s => {
+impl Source<'_> {
+    fn len(&self) -> u64 {
+        match self {
+            Source::File(_, len) => *len,
+            Source::Bytes(b) => b.len() as u64,
+        }
+    }
+
+    /// Fills `buf` from `offset`; the caller has checked that the bytes exist.
+    fn read_at(&self, buf: &mut [u8], offset: u64) -> std::io::Result<()> {
+        match self {
+            Source::File(f, _) => std::os::unix::fs::FileExt::read_exact_at(f, buf, offset),
+            Source::Bytes(b) => {
+                let part = usize::try_from(offset)
+                    .ok()
+                    .and_then(|o| b.get(o..o.checked_add(buf.len())?))
+                    .ok_or(std::io::ErrorKind::UnexpectedEof)?;
+                buf.copy_from_slice(part);
+                Ok(())
+            }
+        }
+    }
+}
+
+/// The element types read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Elem {
+    F8,
+    F4,
+    /// Signed integer of 1, 2, 4 or 8 bytes.
+    Int(usize),
+    /// Unsigned integer of 1, 2, 4 or 8 bytes.
+    Uint(usize),
+    Bool,
+}
+
+impl Elem {
+    fn size(self) -> usize {
+        match self {
+            Elem::F8 => 8,
+            Elem::F4 => 4,
+            Elem::Int(n) | Elem::Uint(n) => n,
+            Elem::Bool => 1,
+        }
+    }
+
+    /// The element type of a dtype, or why it is refused.
+    fn of(dtype: &DType) -> Result<Elem, String> {
+        let DType::Plain(ts) = dtype else {
             return Err(format!(
-                "expected a 2-D array (samples, 1 + 6·groups), found shape {s:?}"
+                "a structured array (dtype {}) is not read: expected a plain 2-D float64 array",
+                dtype.descr()
+            ));
+        };
+        let (tc, size) = (ts.type_char(), ts.size_field());
+        if tc == TypeChar::Object {
+            return Err(
+                "an object array (dtype object, pickled Python objects) is not read: save the values as float64 \
+                 (`arr.astype('<f8')`)"
+                    .into(),
+            );
+        }
+        if ts.endianness() == npyz::Endianness::Big && size > 1 {
+            return Err(format!(
+                "a big-endian array (dtype {ts}) is not read: save it little-endian (`arr.astype('<f8')`)"
             ));
         }
-    };
-    let (rows, cols) = (usize::try_from(rows), usize::try_from(cols));
-    let (Ok(rows), Ok(cols)) = (rows, cols) else {
-        return Err("the array is too large for this machine".into());
-    };
-    if cols < 1 + PER_GROUP || (cols - 1) % PER_GROUP != 0 {
-        return Err(format!(
-            "expected 1 + 6·groups columns (t, then gx gy gz ax ay az per group), found {cols}"
-        ));
+        match (tc, size) {
+            (TypeChar::Float, 8) => Ok(Elem::F8),
+            (TypeChar::Float, 4) => Ok(Elem::F4),
+            (TypeChar::Int, 1 | 2 | 4 | 8) => Ok(Elem::Int(size as usize)),
+            (TypeChar::Uint, 1 | 2 | 4 | 8) => Ok(Elem::Uint(size as usize)),
+            (TypeChar::Bool, 1) => Ok(Elem::Bool),
+            _ => Err(format!(
+                "dtype {ts} is not read: expected float64 or float32 values (integers and booleans are converted)"
+            )),
+        }
     }
-    if rows == 0 {
-        return Err("no samples: the array has no rows".into());
+
+    /// Decodes a block of whole rows of a C-order array, `rows` = `bytes` with `cols` elements per row, into
+    /// `chunks[k]` = array column `wanted[k]` of those rows.
+    fn decode_rows(self, rows: &[u8], cols: usize, wanted: &[usize], chunks: &mut [&mut [f64]]) {
+        match self {
+            Elem::F8 => transpose::<8>(rows, cols, wanted, chunks, f64::from_le_bytes),
+            Elem::F4 => transpose::<4>(rows, cols, wanted, chunks, |b| {
+                f64::from(f32::from_le_bytes(b))
+            }),
+            Elem::Int(1) => transpose::<1>(rows, cols, wanted, chunks, |b| {
+                f64::from(i8::from_le_bytes(b))
+            }),
+            Elem::Int(2) => transpose::<2>(rows, cols, wanted, chunks, |b| {
+                f64::from(i16::from_le_bytes(b))
+            }),
+            Elem::Int(4) => transpose::<4>(rows, cols, wanted, chunks, |b| {
+                f64::from(i32::from_le_bytes(b))
+            }),
+            // The nearest float64 (exact up to 2^53).
+            Elem::Int(_) => {
+                transpose::<8>(rows, cols, wanted, chunks, |b| i64::from_le_bytes(b) as f64)
+            }
+            Elem::Uint(1) | Elem::Bool => {
+                transpose::<1>(rows, cols, wanted, chunks, |b| f64::from(b[0]))
+            }
+            Elem::Uint(2) => transpose::<2>(rows, cols, wanted, chunks, |b| {
+                f64::from(u16::from_le_bytes(b))
+            }),
+            Elem::Uint(4) => transpose::<4>(rows, cols, wanted, chunks, |b| {
+                f64::from(u32::from_le_bytes(b))
+            }),
+            Elem::Uint(_) => {
+                transpose::<8>(rows, cols, wanted, chunks, |b| u64::from_le_bytes(b) as f64)
+            }
+        }
     }
-    let fortran = npy.order() == npyz::Order::Fortran;
-    let dtype = npy.dtype();
-    let flat: Vec<f64> = match npy.try_data::<f64>() {
-        Ok(data) => data.collect::<std::io::Result<_>>(),
-        Err(npy) => match npy.data::<f32>() {
-            Ok(data) => data
-                .map(|x| x.map(f64::from))
-                .collect::<std::io::Result<_>>(),
-            Err(_) => {
+
+    /// Decodes consecutive elements (`bytes`, one column of a Fortran-order array) into `out`.
+    fn decode_column(self, bytes: &[u8], out: &mut [f64]) {
+        let mut one = [&mut *out];
+        // A column is a C-order array of one column.
+        self.decode_rows(bytes, 1, &[0], &mut one);
+    }
+}
+
+/// `chunks[k][i] = f(element (i, wanted[k]))` of `rows`, a C-order block of `N`-byte elements, `cols` per row. Tiles
+/// of 8 rows: their bytes stay in the L1 cache while each output column gets a whole cache line.
+fn transpose<const N: usize>(
+    rows: &[u8],
+    cols: usize,
+    wanted: &[usize],
+    chunks: &mut [&mut [f64]],
+    f: impl Fn([u8; N]) -> f64,
+) {
+    const TILE: usize = 8;
+    let row_bytes = cols * N;
+    for (t, tile) in rows.chunks(TILE * row_bytes).enumerate() {
+        for (&j, chunk) in wanted.iter().zip(chunks.iter_mut()) {
+            let out = chunk.get_mut(t * TILE..).unwrap_or_default();
+            for (o, row) in out.iter_mut().zip(tile.chunks_exact(row_bytes)) {
+                *o = row
+                    .get(j * N..)
+                    .and_then(|e| e.first_chunk::<N>())
+                    .map_or(f64::NAN, |b| f(*b));
+            }
+        }
+    }
+}
+
+/// An opened `.npy` array: its header checked, its data not yet read.
+pub struct NpyArray<'a> {
+    src: Source<'a>,
+    rows: usize,
+    cols: usize,
+    fortran: bool,
+    elem: Elem,
+    descr: String,
+    /// Byte offset of the first element.
+    data_offset: u64,
+}
+
+impl NpyArray<'static> {
+    /// Opens a `.npy` file and checks its header (see module docs).
+    pub fn open(path: &Path) -> anyhow::Result<NpyArray<'static>> {
+        let file = std::fs::File::open(path)
+            .map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
+        let len = file
+            .metadata()
+            .map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?
+            .len();
+        NpyArray::new(Source::File(file, len))
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+}
+
+impl<'a> NpyArray<'a> {
+    /// A `.npy` file's bytes in memory, its header checked (see module docs).
+    pub fn from_bytes(bytes: &'a [u8]) -> Result<NpyArray<'a>, String> {
+        NpyArray::new(Source::Bytes(bytes))
+    }
+
+    fn new(src: Source<'a>) -> Result<NpyArray<'a>, String> {
+        let unreadable = |what: &str| format!("not a readable .npy file: {what}");
+        // Magic, version, header length: 10 bytes in version 1, 12 in versions 2 and 3.
+        let mut pre = [0u8; 12];
+        let n = src.len().min(12) as usize;
+        src.read_at(&mut pre[..n], 0)
+            .map_err(|e| unreadable(&e.to_string()))?;
+        if !pre.starts_with(MAGIC) {
+            return Err(unreadable("it does not start with \\x93NUMPY"));
+        }
+        let text = match pre[6] {
+            1 => u64::from(u16::from_le_bytes([pre[8], pre[9]])) + 10,
+            2 | 3 => u64::from(u32::from_le_bytes([pre[8], pre[9], pre[10], pre[11]])) + 12,
+            v => return Err(unreadable(&format!("unknown format version {v}"))),
+        };
+        if text > src.len() {
+            return Err(unreadable("the file ends inside the header"));
+        }
+        let mut head = vec![0u8; text as usize];
+        src.read_at(&mut head, 0)
+            .map_err(|e| unreadable(&e.to_string()))?;
+        let header =
+            npyz::NpyHeader::from_reader(&head[..]).map_err(|e| unreadable(&e.to_string()))?;
+        let (rows, cols) = match header.shape() {
+            &[rows, cols] => (rows, cols),
+            s => {
                 return Err(format!(
-                    "expected float64 or float32 values, found {dtype:?}"
+                    "expected a 2-D array (samples, 1 + 6·groups), found shape {s:?}"
                 ));
             }
-        },
-    }
-    .map_err(|e| format!("reading the data: {e}"))?;
-    if flat.len() != rows * cols {
-        return Err(format!(
-            "the data holds {} values, the shape {rows} × {cols} says {}",
-            flat.len(),
-            rows * cols
-        ));
-    }
-    // Column j as a vector, from either storage order.
-    let column = |j: usize| -> Vec<f64> {
-        if fortran {
-            flat.get(j * rows..(j + 1) * rows)
-                .unwrap_or_default()
-                .to_vec()
-        } else {
-            flat.iter().skip(j).step_by(cols).copied().collect()
-        }
-    };
-    let name = |j: usize| {
-        if j == 0 {
-            "t".to_string()
-        } else {
-            let k = j - 1;
-            let kind = if k % PER_GROUP < 3 {
-                SensorKind::Gyro
-            } else {
-                SensorKind::Accel
-            };
-            column_name(kind, k / PER_GROUP, k % 3)
-        }
-    };
-    let mut all: Vec<Vec<f64>> = (0..cols).map(column).collect();
-    for (j, c) in all.iter().enumerate() {
-        if let Some(i) = c.iter().position(|x| !x.is_finite()) {
+        };
+        let (Ok(rows), Ok(cols)) = (usize::try_from(rows), usize::try_from(cols)) else {
+            return Err("the array is too large for this machine".into());
+        };
+        let dtype = header.dtype();
+        let elem = Elem::of(&dtype)?;
+        // `<f8`, as numpy prints it (`DType::descr` quotes it, as in the header).
+        let descr = match &dtype {
+            DType::Plain(ts) => ts.to_string(),
+            d => d.descr(),
+        };
+        if cols < 1 + PER_GROUP || (cols - 1) % PER_GROUP != 0 {
             return Err(format!(
-                "row {i}, column {j} ({}): {} is not a finite number",
-                name(j),
-                c.get(i).copied().unwrap_or(f64::NAN)
+                "expected 1 + 6·groups columns (t, then gx gy gz ax ay az per group), found {cols}"
             ));
         }
+        if rows == 0 {
+            return Err("no samples: the array has no rows".into());
+        }
+        let need = rows
+            .checked_mul(cols)
+            .and_then(|n| n.checked_mul(elem.size()))
+            .ok_or("the array is too large for this machine")?;
+        let have = src.len() - text;
+        if have < need as u64 {
+            return Err(format!(
+                "reading the data: the file holds {have} bytes after the header, the shape {rows} × {cols} of \
+                 {descr} needs {need}"
+            ));
+        }
+        Ok(NpyArray {
+            src,
+            rows,
+            cols,
+            fortran: header.order() == npyz::Order::Fortran,
+            elem,
+            descr,
+            data_offset: text,
+        })
     }
-    let t_s = all.remove(0);
-    if let Some(i) = t_s.windows(2).position(|w| w.get(1) <= w.first()) {
-        return Err(format!(
-            "row {}, column 0 (t): {} s is not after {} s on row {i}: t must increase",
-            i + 1,
-            t_s.get(i + 1).copied().unwrap_or(f64::NAN),
-            t_s.get(i).copied().unwrap_or(f64::NAN)
-        ));
+
+    /// Samples (rows).
+    pub fn rows(&self) -> usize {
+        self.rows
     }
-    Ok(Recording::from_group_columns(t_s, all))
+
+    /// Sensor groups (each 6 columns after `t`).
+    pub fn groups(&self) -> usize {
+        (self.cols - 1) / PER_GROUP
+    }
+
+    /// What was converted, when the values are not `float64` or `float32` (e.g. "int16 values converted to
+    /// float64").
+    pub fn conversion(&self) -> Option<String> {
+        let what = match self.elem {
+            Elem::F8 | Elem::F4 => return None,
+            Elem::Int(n) => format!("int{}", 8 * n),
+            Elem::Uint(n) => format!("uint{}", 8 * n),
+            Elem::Bool => "bool".into(),
+        };
+        let exact = if matches!(self.elem, Elem::Int(8) | Elem::Uint(8)) {
+            " (exact up to 2^53)"
+        } else {
+            ""
+        };
+        Some(format!(
+            "{what} values (dtype {}) converted to float64{exact}",
+            self.descr
+        ))
+    }
+
+    /// The interchange name of array column `j` (`t`, `g00x`, …).
+    fn name(j: usize) -> String {
+        if j == 0 {
+            return "t".into();
+        }
+        let k = j - 1;
+        let kind = if k % PER_GROUP < 3 {
+            SensorKind::Gyro
+        } else {
+            SensorKind::Accel
+        };
+        column_name(kind, k / PER_GROUP, k % 3)
+    }
+
+    /// The whole recording: `t` and every sensor column.
+    pub fn recording(&self) -> Result<Recording, String> {
+        self.recording_of(&[])
+    }
+
+    /// The recording with only the named sensor columns (all when `names` is empty; names not in the array are
+    /// left out, for the caller to report). Only those columns and `t` are ever materialised.
+    pub fn recording_of(&self, names: &[String]) -> Result<Recording, String> {
+        let wanted = self.wanted(names);
+        let (data, _) = self.read_columns(&wanted, false)?;
+        Ok(Self::assemble(&wanted, data))
+    }
+
+    /// As [`recording_of`](Self::recording_of), and in the same pass the cluster mean of every axis over all
+    /// groups (gyro x y z, then accel x y z), equal to `adev::cluster_mean` of the whole recording bit for bit.
+    pub fn recording_with_means(
+        &self,
+        names: &[String],
+    ) -> Result<(Recording, Vec<AxisMean>), String> {
+        let wanted = self.wanted(names);
+        let (data, means) = self.read_columns(&wanted, true)?;
+        Ok((Self::assemble(&wanted, data), means))
+    }
+
+    /// Array columns to read: `t` and the named sensor columns (all when `names` is empty).
+    fn wanted(&self, names: &[String]) -> Vec<usize> {
+        std::iter::once(0)
+            .chain((1..self.cols).filter(|&j| names.is_empty() || names.contains(&Self::name(j))))
+            .collect()
+    }
+
+    /// The recording of array columns `wanted` (`t` first), their data `data` in the same order.
+    fn assemble(wanted: &[usize], mut data: Vec<Vec<f64>>) -> Recording {
+        let t_s = if data.is_empty() {
+            Vec::new()
+        } else {
+            data.remove(0)
+        };
+        let mut columns: Vec<Column> = wanted
+            .iter()
+            .skip(1)
+            .zip(data)
+            .map(|(&j, data)| {
+                let k = j - 1;
+                Column {
+                    group: k / PER_GROUP,
+                    kind: if k % PER_GROUP < 3 {
+                        SensorKind::Gyro
+                    } else {
+                        SensorKind::Accel
+                    },
+                    axis: k % 3,
+                    data,
+                }
+            })
+            .collect();
+        columns.sort_by_key(|c| (c.kind, c.group, c.axis));
+        Recording {
+            t_s,
+            temp_c: None,
+            columns,
+        }
+    }
+
+    /// Reads array columns `wanted` (ascending, column 0 first) in one pass over the file, checked: every value
+    /// read finite, `t` increasing. With `means`, also the cluster mean of every axis ([`AxisMean`]), from every
+    /// sensor column (all are then read and checked, but only `wanted` are kept).
+    fn read_columns(
+        &self,
+        wanted: &[usize],
+        means: bool,
+    ) -> Result<(Vec<Vec<f64>>, Vec<AxisMean>), String> {
+        let (rows, size) = (self.rows, self.elem.size());
+        // Rows per block: ≈ BLOCK_BYTES of the array (C order: whole rows; Fortran order: of each column).
+        let block_rows = if self.fortran {
+            BLOCK_BYTES / size
+        } else {
+            BLOCK_BYTES / (self.cols * size)
+        }
+        .max(1);
+        let mut out: Vec<Vec<f64>> = wanted.iter().map(|_| vec![0.0; rows]).collect();
+        let mut mean_out: Vec<AxisMean> = if means {
+            [SensorKind::Gyro, SensorKind::Accel]
+                .into_iter()
+                .flat_map(|kind| (0..3).map(move |axis| (kind, axis)))
+                .map(|(kind, axis)| AxisMean {
+                    kind,
+                    axis,
+                    members: self.groups(),
+                    data: vec![0.0; rows],
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        // Task b: rows b·block_rows … of every output, as disjoint slices.
+        let mut tasks: Vec<Vec<&mut [f64]>> = (0..rows.div_ceil(block_rows))
+            .map(|_| Vec::with_capacity(out.len() + mean_out.len()))
+            .collect();
+        let outputs = out
+            .iter_mut()
+            .chain(mean_out.iter_mut().map(|m| &mut m.data));
+        for col in outputs {
+            for (task, chunk) in tasks.iter_mut().zip(col.chunks_mut(block_rows)) {
+                task.push(chunk);
+            }
+        }
+        // Read: the wanted columns, or every column when the means need them.
+        let all: Vec<usize> = (0..self.cols).collect();
+        let read: &[usize] = if means { &all } else { wanted };
+        // The first value that is not finite, as (column, row, value): the message has always named the first in
+        // column order.
+        let bad = std::sync::Mutex::new(None::<(usize, usize, f64)>);
+        tasks.into_par_iter().enumerate().try_for_each_init(
+            || (Vec::new(), Vec::new()),
+            |(buf, scratch): &mut (Vec<u8>, Vec<f64>), (b, mut chunks)| {
+                let row0 = b * block_rows;
+                let n = chunks.first().map_or(0, |c| c.len());
+                let (kept, avg) = chunks.split_at_mut(wanted.len());
+                if !means {
+                    self.read_block(row0, read, kept, buf)?;
+                    note_bad(&bad, read, kept, row0);
+                } else if wanted.len() == self.cols {
+                    // Every column is kept: the means from the block just read, while it is in the cache.
+                    self.read_block(row0, read, kept, buf)?;
+                    note_bad(&bad, read, kept, row0);
+                    self.block_means(kept, avg);
+                } else {
+                    // Every column of the block into `scratch`, then the wanted ones and the means from it.
+                    scratch.resize(n * self.cols, 0.0);
+                    let mut cols: Vec<&mut [f64]> = scratch.chunks_mut(n).collect();
+                    self.read_block(row0, read, &mut cols, buf)?;
+                    note_bad(&bad, read, &cols, row0);
+                    for (&j, chunk) in wanted.iter().zip(kept.iter_mut()) {
+                        chunk.copy_from_slice(cols[j]);
+                    }
+                    self.block_means(&cols, avg);
+                }
+                Ok::<_, String>(())
+            },
+        )?;
+        if let Some((j, i, x)) = bad.into_inner().unwrap_or_else(|e| e.into_inner()) {
+            return Err(format!(
+                "row {i}, column {j} ({}): {x} is not a finite number",
+                Self::name(j)
+            ));
+        }
+        let t = out.first().map_or(&[][..], |t| t.as_slice());
+        if let Some(i) = t.windows(2).position(|w| w[1] <= w[0]) {
+            return Err(format!(
+                "row {}, column 0 (t): {} s is not after {} s on row {i}: t must increase",
+                i + 1,
+                t[i + 1],
+                t[i]
+            ));
+        }
+        Ok((out, mean_out))
+    }
+
+    /// The cluster means of a block: `avg[m]` = the mean over the groups of `cols[1 + 6·g + m]` (every array
+    /// column of the block, `t` first), added column by column in group order, then divided: the sums
+    /// `adev::cluster_mean` makes.
+    fn block_means<C: AsRef<[f64]>>(&self, cols: &[C], avg: &mut [&mut [f64]]) {
+        let groups = self.groups();
+        for (m, chunk) in avg.iter_mut().enumerate() {
+            for g in 0..groups {
+                let c = cols
+                    .get(1 + PER_GROUP * g + m)
+                    .map_or(&[][..], |c| c.as_ref());
+                if g == 0 {
+                    chunk.copy_from_slice(c);
+                } else {
+                    chunk.iter_mut().zip(c).for_each(|(s, x)| *s += x);
+                }
+            }
+            chunk.iter_mut().for_each(|s| *s /= groups as f64);
+        }
+    }
+
+    /// Fills `chunks[k]` (rows `row0 …` of array column `wanted[k]`) from the file; `buf` is this core's block.
+    fn read_block(
+        &self,
+        row0: usize,
+        wanted: &[usize],
+        chunks: &mut [&mut [f64]],
+        buf: &mut Vec<u8>,
+    ) -> Result<(), String> {
+        let size = self.elem.size();
+        let n = chunks.first().map_or(0, |c| c.len());
+        let io = |e: std::io::Error| format!("reading the data: {e}");
+        let at = |elem: usize| self.data_offset + (elem * size) as u64;
+        if self.fortran {
+            for (&j, chunk) in wanted.iter().zip(chunks.iter_mut()) {
+                let first = at(j * self.rows + row0);
+                if self.elem == Elem::F8 && cfg!(target_endian = "little") {
+                    // The column's bytes are its values: read straight into the output.
+                    self.src
+                        .read_at(bytemuck::cast_slice_mut(chunk), first)
+                        .map_err(io)?;
+                } else {
+                    buf.resize(n * size, 0);
+                    self.src.read_at(buf, first).map_err(io)?;
+                    self.elem.decode_column(buf, chunk);
+                }
+            }
+        } else {
+            buf.resize(n * self.cols * size, 0);
+            self.src.read_at(buf, at(row0 * self.cols)).map_err(io)?;
+            self.elem.decode_rows(buf, self.cols, wanted, chunks);
+        }
+        Ok(())
+    }
+}
+
+/// Keeps in `bad` the first value that is not finite in column order: `cols[k]` holds rows `row0 …` of array
+/// column `index[k]`.
+fn note_bad<C: AsRef<[f64]>>(
+    bad: &std::sync::Mutex<Option<(usize, usize, f64)>>,
+    index: &[usize],
+    cols: &[C],
+    row0: usize,
+) {
+    // `fold`, not `all`: no early exit, so the common case (all finite) is vectorised.
+    let finite = |c: &[f64]| c.iter().fold(true, |ok, x| ok & x.is_finite());
+    for (&j, c) in index.iter().zip(cols) {
+        let c = c.as_ref();
+        if finite(c) {
+            continue;
+        }
+        let Some(i) = c.iter().position(|x| !x.is_finite()) else {
+            continue;
+        };
+        let mut first = bad.lock().unwrap_or_else(|e| e.into_inner());
+        if first.is_none_or(|(j0, i0, _)| (j, row0 + i) < (j0, i0)) {
+            *first = Some((j, row0 + i, c[i]));
+        }
+        return;
+    }
+}
+
+/// Reads a whole `.npy` file (see module docs).
+pub fn read(path: &Path) -> anyhow::Result<Recording> {
+    NpyArray::open(path)?
+        .recording()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// Parses a whole `.npy` file's bytes (see module docs); the error says what is wrong and where.
+pub fn parse(bytes: &[u8]) -> Result<Recording, String> {
+    NpyArray::from_bytes(bytes)?.recording()
 }
 
 #[cfg(test)]

@@ -71,7 +71,15 @@ pub fn run(a: Args) -> Result<()> {
     let t0 = std::time::Instant::now();
     let cal = any_calib(&a.calib)?;
     let pb = spinner("reading");
-    let mut loaded = load::load_with(&a.recording, cal.as_ref(), FPGA_BASE_RATE_MILLIHZ)?;
+    // Only the requested columns, and the cluster means computed while reading, where the input allows (a .npy
+    // array; not with a window, which the means would have to follow).
+    let (mut loaded, means) = if a.window.is_some() {
+        let all = load::load_with(&a.recording, cal.as_ref(), FPGA_BASE_RATE_MILLIHZ)?;
+        (all, None)
+    } else {
+        let only = if a.all { &[][..] } else { &a.columns[..] };
+        load::load_selected(&a.recording, cal.as_ref(), FPGA_BASE_RATE_MILLIHZ, only)?
+    };
     pb.finish_and_clear();
     print_loaded(&loaded);
     if let Some(w) = &a.window {
@@ -103,7 +111,8 @@ pub fn run(a: Args) -> Result<()> {
     } + 6;
     let t_read = t0.elapsed().as_secs_f64();
     let pb = bar(n_series as u64, "series");
-    let series = adev::analyze(rec, &req, &|| pb.inc(1)).map_err(anyhow::Error::msg)?;
+    let series =
+        adev::analyze_with_means(rec, means, &req, &|| pb.inc(1)).map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
     let t_analysis = t0.elapsed().as_secs_f64() - t_read;
     if series.iter().all(|s| s.points.is_empty()) {
