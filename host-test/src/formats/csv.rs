@@ -294,9 +294,17 @@ impl Recording {
     /// A recording from columns in group order — group 0's gyro x y z (°/s) and accel x y z (g), then group 1's, … —
     /// sorted as the CSV reader sorts them; no temperature.
     pub fn from_group_columns(t_s: Vec<f64>, columns: Vec<Vec<f64>>) -> Recording {
+        Self::from_indexed_columns(t_s, columns.into_iter().enumerate())
+    }
+
+    /// A recording from `(k, data)` pairs, `k` a sensor column's index in group order (as in
+    /// [`Self::from_group_columns`]; any subset, any order), sorted as the CSV reader sorts them; no temperature.
+    pub fn from_indexed_columns(
+        t_s: Vec<f64>,
+        columns: impl IntoIterator<Item = (usize, Vec<f64>)>,
+    ) -> Recording {
         let mut columns: Vec<Column> = columns
             .into_iter()
-            .enumerate()
             .map(|(k, data)| Column {
                 group: k / 6,
                 kind: if k % 6 < 3 {

@@ -18,7 +18,7 @@
 //! forbids `unsafe`, and `memmap2::Mmap::map` is `unsafe` (the file may change under the mapping); besides, a
 //! mapped C-order array stays resident next to the columns taken out of it, which doubles the peak memory.
 
-use super::csv::{AxisMean, Column, Recording, SensorKind, column_name};
+use super::csv::{AxisMean, Recording, SensorKind, column_name};
 use npyz::{DType, TypeChar};
 use rayon::prelude::*;
 use std::path::Path;
@@ -370,30 +370,8 @@ impl<'a> NpyArray<'a> {
         } else {
             data.remove(0)
         };
-        let mut columns: Vec<Column> = wanted
-            .iter()
-            .skip(1)
-            .zip(data)
-            .map(|(&j, data)| {
-                let k = j - 1;
-                Column {
-                    group: k / PER_GROUP,
-                    kind: if k % PER_GROUP < 3 {
-                        SensorKind::Gyro
-                    } else {
-                        SensorKind::Accel
-                    },
-                    axis: k % 3,
-                    data,
-                }
-            })
-            .collect();
-        columns.sort_by_key(|c| (c.kind, c.group, c.axis));
-        Recording {
-            t_s,
-            temp_c: None,
-            columns,
-        }
+        // Array column j ≥ 1 is sensor column j − 1 in group order.
+        Recording::from_indexed_columns(t_s, wanted.iter().skip(1).map(|&j| j - 1).zip(data))
     }
 
     /// Reads array columns `wanted` (ascending, column 0 first) in one pass over the file, checked: every value
