@@ -166,8 +166,9 @@ fn ratio(a: &[f64], b: &[f64]) -> Vec<f64> {
     a.iter().zip(b).map(|(x, y)| x / y).collect()
 }
 
-/// The configuration `ground simulate` builds for the seed preset with the thermal flags.
-fn config(
+/// The configuration `ground simulate` builds for the seed preset with the thermal flags, for the board
+/// of `o` with noise seed `seed`.
+pub fn config(
     o: &ThermalCheckOptions,
     seed: u64,
     hours: f64,

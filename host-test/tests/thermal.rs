@@ -79,3 +79,70 @@ fn a_record_spanning_less_than_10_c_is_refused() {
         "{e}"
     );
 }
+
+/// `ground calibrate --from-model`'s path: the ramp record of the same board, calibrated with the factory table,
+/// diagnosed (`diagnose` + `twin::fit`, as `ground diagnose --model`), and the model turned into table terms
+/// (`calibrate::from_model`). The terms' drift of each calibrated axis, `M·d`, against the simulator's true raw
+/// coefficients through the same matrix.
+#[test]
+fn a_model_fitted_by_the_diagnosis_gives_the_boards_thermal_terms() {
+    use host_test::calibrate::{CalibrationFile, from_model};
+    use host_test::load::{Calibration, load_with};
+    use host_test::sim::Channel;
+    use shared::calib::CalibrationTable;
+    let o = ThermalCheckOptions::QUICK;
+    let ramp = parse_temperature("ramp:from_c=-10,to_c=50,hours=3").unwrap();
+    let cfg = host_test::thermal_check::config(&o, o.ramp_seed, o.ramp_hours, ramp).unwrap();
+    let (bytes, sim) = host_test::thermal_check::frames(cfg).unwrap();
+    let dir = std::env::temp_dir().join(format!("from-model-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("ramp.bin");
+    std::fs::write(&path, &bytes).unwrap();
+    drop(bytes);
+    let factory = CalibrationTable::<16>::factory();
+    let cal = Calibration::Board(Box::new(factory));
+    let rec = load_with(
+        &path,
+        Some(&cal),
+        shared::wire::clock::FPGA_BASE_RATE_MILLIHZ,
+    )
+    .unwrap()
+    .recording;
+    std::fs::remove_dir_all(&dir).ok();
+    let report = host_test::diagnose::diagnose(&rec, &Default::default()).unwrap();
+    let model = host_test::twin::fit(&rec, &report, "ramp").unwrap();
+    let base = CalibrationFile::from_table(&factory);
+    let r = from_model(&model, &base, None).unwrap();
+    assert_eq!(r.thermal_sensors, 96);
+    let th = r.file.thermal.as_ref().unwrap();
+    // Per axis (gx gy gz ax ay az): the largest error over the 16 groups and the mean true drift.
+    let mut worst = [0f64; 6];
+    let mut mean = [0f64; 6];
+    for (g, (cal, t)) in base.groups.iter().zip(th).enumerate() {
+        let k = Channel::ALL.map(|ch| sim.thermal_coef_counts(g, ch).unwrap());
+        for a in 0..3 {
+            let row = &cal.gyro_matrix_dps_per_count[a];
+            let dot = |d: &[f64]| row.iter().zip(d).map(|(m, x)| m * x).sum::<f64>();
+            let (truth, est) = (dot(&k[..4]), dot(&t.gyro_lin_counts_per_c));
+            worst[a] = worst[a].max((est - truth).abs());
+            mean[a] += truth / 16.0;
+            let row = &cal.accel_matrix_g_per_count[a];
+            let dot = |d: &[f64]| row.iter().zip(d).map(|(m, x)| m * x).sum::<f64>();
+            let (truth, est) = (dot(&k[4..]), dot(&t.accel_lin_counts_per_c));
+            worst[3 + a] = worst[3 + a].max((est - truth).abs());
+            mean[3 + a] += truth / 16.0;
+        }
+    }
+    for a in 0..6 {
+        println!(
+            "axis {a}: largest error {:.3e} against a mean drift of {:.3e} per °C ({:.1} %)",
+            worst[a],
+            mean[a],
+            100.0 * worst[a] / mean[a].abs()
+        );
+        // Measured: 2.4–3.7 % on the gyro axes, 1.5–8.2 % on the accelerometer's (accel y the largest, as in the
+        // direct fit: its slow bias noise looks most like a temperature law; the diagnosis fits on the ramp's first
+        // half, 30 °C).
+        assert!(worst[a] < 0.12 * mean[a].abs(), "axis {a}");
+    }
+}

@@ -25,6 +25,7 @@ pub mod data;
 mod detect;
 mod file;
 mod fit;
+mod from_model;
 pub mod linalg;
 mod rate_table;
 mod records;
@@ -43,6 +44,7 @@ pub use fit::{
     BiasModel, ClusterAlignment, ClusterFit, ImuCal, MagnitudeFit, StaticCalOptions,
     StaticCalibration, align_cluster, calibrate_static, fit_magnitude, refine_cluster,
 };
+pub use from_model::{FromModel, MAX_TAU_FRACTION, MODEL_RIDGE, from_model, model_covariance};
 pub use rate_table::{
     AccelRecords, RateRecord, RateTableFit, RateTableOptions, UpAxis, fit_rate_table,
     fit_rate_table_group, standard_inputs, two_point,

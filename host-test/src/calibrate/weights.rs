@@ -5,9 +5,10 @@
 //! sensors' overlapping Allan covariance at τ (`Σᵢⱼ = ⟨Δᵢ Δⱼ⟩ / 2`, Δ the difference of consecutive τ-averages).
 //! Over a region of octave τ's the weights minimise `wᵀ S w` with `S = Σ_τ Σ(τ) / σ̄²(τ)` (each τ scaled by the
 //! mean sensor variance there, so that every octave counts alike): `w = S⁻¹1 / 1ᵀS⁻¹1`. A process common to all
-//! sensors adds `c·11ᵀ` to `Σ`, which the constraint makes a constant: it neither helps nor hurts, and the weights
-//! follow the sensors' own processes only — a sensor that drifts at long τ loses its weight there, which the
-//! on-board inverse-variance weights (white noise only) cannot see.
+//! sensors adds `c·11ᵀ` to `Σ(τ)`, which the constraint makes a constant: at one τ it neither helps nor hurts
+//! (over a region it only changes how much each τ counts, through its mean variance), and the weights follow the
+//! sensors' own processes — a sensor that drifts at long τ loses its weight there, which the on-board
+//! inverse-variance weights (white noise only) cannot see.
 //!
 //! Unless negative weights are allowed, the constraint `w ≥ 0` is kept by an active set: the sensors whose weight
 //! comes out negative are left out and the rest solved again, until none is negative (a sensor left out is never
@@ -131,6 +132,39 @@ fn gls(s: &DMatrix<f64>, active: &[bool]) -> Result<DVector<f64>, CalibError> {
     Ok(w)
 }
 
+/// The GLS weights for the Allan covariances `covs` of one axis's sensors at the τ's of a region: `S = Σ_τ Σ(τ) /
+/// σ̄²(τ)`, moved `shrinkage` of the way to its diagonal, then `S⁻¹1 / 1ᵀS⁻¹1` with the active set unless
+/// `allow_negative` (see the module docs). Shared by the record's estimates ([`recommend`]) and a model's exact
+/// covariances (`super::from_model`).
+pub fn solve(
+    covs: &[DMatrix<f64>],
+    shrinkage: f64,
+    allow_negative: bool,
+) -> Result<DVector<f64>, CalibError> {
+    let n = covs.first().map_or(0, |c| c.nrows());
+    let mut s = DMatrix::zeros(n, n);
+    for c in covs {
+        let mean_var = c.diagonal().mean();
+        if !(mean_var.is_finite() && mean_var > 0.0) {
+            return Err(CalibError::Degenerate("no variance at a τ of the region"));
+        }
+        s += c / mean_var;
+    }
+    let diag = DMatrix::from_diagonal(&s.diagonal());
+    let s = s * (1.0 - shrinkage) + diag * shrinkage;
+    let mut active = vec![true; n];
+    loop {
+        let w = gls(&s, &active)?;
+        let negative: Vec<usize> = (0..n).filter(|&i| active[i] && w[i] < 0.0).collect();
+        if allow_negative || negative.is_empty() {
+            return Ok(w);
+        }
+        for i in negative {
+            active[i] = false;
+        }
+    }
+}
+
 /// The weights of one axis's sensors (`series`, sampled at `rate_hz`) for the τ region of `opts`.
 pub fn recommend(
     series: &[&[f64]],
@@ -165,27 +199,7 @@ pub fn recommend(
         ));
     }
     let covs: Vec<DMatrix<f64>> = ms.iter().map(|&m| allan_covariance(series, m)).collect();
-    let mut s = DMatrix::zeros(n, n);
-    for c in &covs {
-        let mean_var = c.diagonal().mean();
-        if !(mean_var.is_finite() && mean_var > 0.0) {
-            return Err(CalibError::Degenerate("no variance at a τ of the region"));
-        }
-        s += c / mean_var;
-    }
-    let diag = DMatrix::from_diagonal(&s.diagonal());
-    let s = s * (1.0 - SHRINKAGE) + diag * SHRINKAGE;
-    let mut active = vec![true; n];
-    let w = loop {
-        let w = gls(&s, &active)?;
-        let negative: Vec<usize> = (0..n).filter(|&i| active[i] && w[i] < 0.0).collect();
-        if opts.allow_negative || negative.is_empty() {
-            break w;
-        }
-        for i in negative {
-            active[i] = false;
-        }
-    };
+    let w = solve(&covs, SHRINKAGE, opts.allow_negative)?;
     let equal = DVector::from_element(n, 1.0 / n as f64);
     let dev = |v: &DVector<f64>, c: &DMatrix<f64>| (v.transpose() * c * v)[(0, 0)].max(0.0).sqrt();
     Ok(AxisWeights {
@@ -227,6 +241,12 @@ pub fn recommend_held_out(
     }
     r.held_out = Some(held);
     Ok(r)
+}
+
+/// `w` scaled so that its largest |w| is 1: the table's Q16 range (the core renormalises over the sensors in use).
+pub(crate) fn table_scale(w: &[f64]) -> impl Iterator<Item = f64> + '_ {
+    let top = w.iter().fold(0f64, |m, x| m.max(x.abs()));
+    w.iter().map(move |x| if top > 0.0 { x / top } else { 0.0 })
 }
 
 /// One axis's groups (in the order of its columns) and their recommendation.
@@ -272,10 +292,9 @@ pub fn table_weights(
         } else {
             recommend(&series, rate_hz, opts)?
         };
-        let top = w.weights.iter().fold(0f64, |m, x| m.max(x.abs()));
-        for (c, &x) in cols.iter().zip(&w.weights) {
+        for (c, x) in cols.iter().zip(table_scale(&w.weights)) {
             if let Some(row) = table.get_mut(c.group) {
-                row[t] = x / top;
+                row[t] = x;
             }
         }
         axes.push((cols.iter().map(|c| c.group).collect(), w));

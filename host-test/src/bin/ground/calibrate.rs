@@ -5,7 +5,7 @@ use host_test::load;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
-#[command(group(clap::ArgGroup::new("mode").required(true).args(["static_rec", "rate_table", "thermal", "weights"])))]
+#[command(group(clap::ArgGroup::new("mode").required(true).args(["static_rec", "rate_table", "thermal", "weights", "from_model"])))]
 pub struct Args {
     /// Multi-position static calibration from a MIMU4444 stream (poses found automatically).
     #[arg(long = "static", value_name = "REC")]
@@ -23,20 +23,29 @@ pub struct Args {
     /// them instead of its running inverse-variance weights (`FusionMode::Fixed`).
     #[arg(long, value_name = "REC")]
     weights: Option<PathBuf>,
-    /// With --weights: shortest τ of the region, s.
+    /// The thermal coefficients and fixed weights a cluster model implies (`ground diagnose --model`,
+    /// docs/twin.md), added to --base: the model's output drifts mapped to raw channels through the base's
+    /// matrices, and weights by generalised least squares on the model's Allan covariance over --tau-min … --tau-max.
+    /// --base must be the calibration the diagnosed record was calibrated with.
+    #[arg(long, value_name = "MODEL")]
+    from_model: Option<PathBuf>,
+    /// With --from-model: the thermal terms only, no weights.
+    #[arg(long, requires = "from_model")]
+    no_weights: bool,
+    /// With --weights or --from-model: shortest τ of the region, s.
     #[arg(long, default_value_t = 100.0)]
     tau_min: f64,
-    /// With --weights: longest τ of the region, s.
+    /// With --weights or --from-model: longest τ of the region, s.
     #[arg(long, default_value_t = 3000.0)]
     tau_max: f64,
-    /// With --weights: allow negative weights (by default every weight is ≥ 0).
+    /// With --weights or --from-model: allow negative weights (by default every weight is ≥ 0).
     #[arg(long)]
     allow_negative: bool,
     /// With --weights: fit on the whole record (the default fits on the first half and reports the gain measured
     /// on the second, which it was not fitted on).
     #[arg(long)]
     whole_record: bool,
-    /// With --thermal or --weights: the calibration kept and added to (the factory table otherwise); with
+    /// With --thermal, --weights or --from-model: the calibration kept and added to (the factory table otherwise); with
     /// --thermal its biases are taken to hold at T_ref.
     #[arg(long)]
     base: Option<PathBuf>,
@@ -80,6 +89,9 @@ pub fn run(a: Args) -> Result<()> {
     }
     if let Some(rec) = &a.weights {
         return run_weights(&a, rec);
+    }
+    if let Some(model) = &a.from_model {
+        return run_from_model(&a, model);
     }
     if let Some(rec) = &a.static_rec {
         let m = host_test::mimu::read(rec).map_err(|e| match e {
@@ -335,12 +347,8 @@ fn run_thermal(a: &Args, rec: &std::path::Path) -> Result<()> {
 fn run_weights(a: &Args, rec: &std::path::Path) -> Result<()> {
     use host_test::calibrate::weights::{SHRINKAGE, WeightOptions, table_weights};
     use host_test::calibrate::{self as cal};
-    use shared::calib::CalibrationTable;
     let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
-    let mut file = match &a.base {
-        Some(p) => cal::read_calibration::<16>(p).map_err(cerr)?,
-        None => cal::CalibrationFile::from_table(&CalibrationTable::<16>::factory()),
-    };
+    let mut file = base_file(a)?;
     let table = file.to_table::<16>().map_err(cerr)?;
     let loaded = load::load_with(
         rec,
@@ -375,33 +383,7 @@ fn run_weights(a: &Args, rec: &std::path::Path) -> Result<()> {
     let (weights, axes) = table_weights(r, 16, &opts, !a.whole_record)
         .map_err(|e| anyhow::anyhow!("{}: {e}", rec.display()))?;
     for (name, (groups, w)) in ["gx", "gy", "gz", "ax", "ay", "az"].iter().zip(&axes) {
-        // The gain over the equal mean: measured on the held-out second half, else in sample (optimistic).
-        let (taus, equal, weighted, what) = match &w.held_out {
-            Some(h) => (&h.taus_s, &h.adev_equal, &h.adev_weighted, "held-out half"),
-            None => (&w.taus_s, &w.adev_equal, &w.adev_weighted, "in sample"),
-        };
-        let gain: Vec<String> = taus
-            .iter()
-            .zip(equal.iter().zip(weighted))
-            .map(|(tau, (e, g))| format!("{tau:.0} s {:.2}×", e / g))
-            .collect();
-        let zero: Vec<String> = groups
-            .iter()
-            .zip(&w.weights)
-            .filter(|(_, x)| **x == 0.0)
-            .map(|(g, _)| g.to_string())
-            .collect();
-        println!(
-            "  {name}  weights {:.3} … {:.3} (sum 1){}; ADEV equal mean / weighted ({what}): {}",
-            w.weights.iter().copied().fold(f64::INFINITY, f64::min),
-            w.weights.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-            if zero.is_empty() {
-                String::new()
-            } else {
-                format!(", groups left out: {}", zero.join(" "))
-            },
-            gain.join(", ")
-        );
+        print_axis_weights(name, groups, w, "in sample");
     }
     file.weights = Some(weights);
     file.cal_id = a.cal_id;
@@ -409,6 +391,128 @@ fn run_weights(a: &Args, rec: &std::path::Path) -> Result<()> {
     println!(
         "calibration: {} (fusion mode Fixed once loaded)",
         a.out.display()
+    );
+    Ok(())
+}
+
+/// The base of --thermal, --weights and --from-model: the file given, or the factory table.
+fn base_file(a: &Args) -> Result<host_test::calibrate::CalibrationFile> {
+    use host_test::calibrate as cal;
+    Ok(match &a.base {
+        Some(p) => cal::read_calibration::<16>(p).map_err(|e| anyhow::anyhow!("{e}"))?,
+        None => cal::CalibrationFile::from_table(&shared::calib::CalibrationTable::<16>::factory()),
+    })
+}
+
+/// One line per axis: the weights' range, the groups left out and the equal mean's ADEV over the weighted one at
+/// each τ: on the held-out half when there is one, else as `fitted` says (in sample, or the model's prediction).
+fn print_axis_weights(
+    name: &str,
+    groups: &[usize],
+    w: &host_test::calibrate::weights::AxisWeights,
+    fitted: &str,
+) {
+    let (taus, equal, weighted, what) = match &w.held_out {
+        Some(h) => (&h.taus_s, &h.adev_equal, &h.adev_weighted, "held-out half"),
+        None => (&w.taus_s, &w.adev_equal, &w.adev_weighted, fitted),
+    };
+    let gain: Vec<String> = taus
+        .iter()
+        .zip(equal.iter().zip(weighted))
+        .map(|(tau, (e, g))| format!("{tau:.0} s {:.2}×", e / g))
+        .collect();
+    let zero: Vec<String> = groups
+        .iter()
+        .zip(&w.weights)
+        .filter(|(_, x)| **x == 0.0)
+        .map(|(g, _)| g.to_string())
+        .collect();
+    println!(
+        "  {name}  weights {:.3} … {:.3} (sum 1){}; ADEV equal mean / weighted ({what}): {}",
+        w.weights.iter().copied().fold(f64::INFINITY, f64::min),
+        w.weights.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        if zero.is_empty() {
+            String::new()
+        } else {
+            format!(", groups left out: {}", zero.join(" "))
+        },
+        gain.join(", ")
+    );
+}
+
+/// `--from-model`: the model's thermal coefficients and weights, added to the base.
+fn run_from_model(a: &Args, path: &std::path::Path) -> Result<()> {
+    use host_test::calibrate::weights::WeightOptions;
+    use host_test::calibrate::{self as cal};
+    let model = host_test::twin::ClusterModel::load(path)?;
+    let base = base_file(a)?;
+    let opts = WeightOptions {
+        tau_min_s: a.tau_min,
+        tau_max_s: a.tau_max,
+        allow_negative: a.allow_negative,
+    };
+    let r = cal::from_model(&model, &base, (!a.no_weights).then_some(&opts))
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    println!(
+        "{}: fitted to {} ({} groups, {:.0} s at {:.3} Hz)",
+        path.display(),
+        model.record.source,
+        model.record.groups.len(),
+        model.record.duration_s,
+        model.record.rate_hz
+    );
+    match r.model_t_ref_c {
+        None => println!("  thermal: the model has no temperature; no thermal terms added"),
+        Some(_) if r.thermal_sensors == 0 => {
+            println!("  thermal: the model has no thermal coefficient; no thermal terms added")
+        }
+        Some(t_m) => {
+            let th = r.file.thermal.as_deref().unwrap_or_default();
+            let range = |f: &dyn Fn(&cal::GroupThermalF64) -> Vec<f64>| {
+                th.iter()
+                    .flat_map(f)
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
+                        (l.min(x), h.max(x))
+                    })
+            };
+            let (g0, g1) = range(&|t| t.gyro_lin_counts_per_c.to_vec());
+            let (a0, a1) = range(&|t| t.accel_lin_counts_per_c.to_vec());
+            println!(
+                "  thermal: {} sensor axes with a coefficient about {t_m:.2} °C, mapped to raw channels through the \
+                 base's matrices; table reference {:.2} °C; linear terms now gyro {g0:+.4} … {g1:+.4}, accel \
+                 {a0:+.4} … {a1:+.4} counts/°C",
+                r.thermal_sensors, r.file.t_ref_c
+            );
+        }
+    }
+    if !r.axes.is_empty() {
+        println!(
+            "  weights for τ {} … {} s (generalised least squares on the model's Allan covariance, octave τ's up to \
+             {:.0} % of the record){}",
+            a.tau_min,
+            a.tau_max,
+            100.0 * cal::MAX_TAU_FRACTION,
+            if a.allow_negative {
+                "; negative weights allowed"
+            } else {
+                "; weights ≥ 0"
+            }
+        );
+        for (name, (groups, w)) in &r.axes {
+            print_axis_weights(name, groups, w, "the model's prediction");
+        }
+    }
+    let mut file = r.file;
+    file.cal_id = a.cal_id;
+    cal::write_calibration::<16>(&file, &a.out).map_err(|e| anyhow::anyhow!("{e}"))?;
+    println!(
+        "calibration: {}{}",
+        a.out.display(),
+        if file.weights.is_some() {
+            " (fusion mode Fixed once loaded)"
+        } else {
+            ""
+        }
     );
     Ok(())
 }
