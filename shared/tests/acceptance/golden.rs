@@ -1,17 +1,14 @@
-//! Golden output test: a long deterministic, noisy frame stream with faults, lost and damaged frames, mode
-//! switches and commands goes through the pipeline, and everything it says is hashed: every queued output, every
-//! dump report (`poll_dump`), `last_fused()` after every frame and, at checkpoints, the fusion's noise estimates,
-//! weights and fault counters, each as its postcard encoding (the telemetry's wire form; `FusedSample`'s fields one
-//! by one), so that a change of a `Debug` format cannot change a hash. The hashes were first recorded from the code
-//! before the performance work (of the `Debug` text then); optimisations must leave every output bit unchanged.
+//! Golden output tests: a long deterministic, noisy frame stream with faults, lost and damaged frames, mode
+//! switches and commands goes through the pipeline.
 //!
-//! One deliberate change since: the fusion's noise estimator sums `Δr²` per `weight_interval` block and folds the
-//! block into its average once per block instead of updating a 64-bit average every sample (−2.7 k Cortex-M4
-//! instructions per frame). The estimates, and so the weights, differ slightly; nothing else did (the raw-watch
-//! rewrite of the same change was checked alone against the old hashes). Measured on a simulated 120-s, 604.8-Hz
-//! record (`ground simulate --seconds 120 --rate 604.8 --seed 7`, `replay`, 2 268 fused reports): the reports of
-//! the two versions differ by ≤ 2.1 % of the output noise (rms 0.5 %), the output noise is the same to 0.02 %, and
-//! `replay --check` stays ≤ 0.5 LSB gyro, ≤ 0.76 LSB accelerometer per frame.
+//! - **The snapshot** (`outputs_match_the_snapshot`, navigation on): every message the core sends, decoded from its
+//!   postcard bytes, as JSON lines in `golden/default.jsonl`. A change shows as the first line that differs; a
+//!   deliberate one is accepted with `UPDATE_GOLDEN=1` and reviewed as a diff of what the MCU says.
+//! - **The hashes** (`outputs_are_bit_exact`, two configurations, navigation off): everything the pipeline says,
+//!   hashed — every queued output, every dump report, `last_fused()` after every frame and, at checkpoints, the
+//!   fusion's noise estimates, weights and fault counters, each as its postcard encoding — so that the internal
+//!   state the messages only sample is guarded bit for bit too. Optimisations must leave both unchanged; the
+//!   hashes' history (which deliberate changes moved them, and how they were checked) is in `docs/performance.md`.
 //!
 //! The stream uses integer noise and only exact f64 arithmetic (`board::nominal_codes`, `round`), so it is the same
 //! on every platform.
@@ -219,12 +216,41 @@ struct Run {
     p: HostPipeline,
     h: Fnv,
     seen: Seen,
+    /// The frame being pushed (its index in the stream).
+    frame: usize,
+    /// Every output and dump as a JSON line (`snapshot`), decoded from its postcard bytes.
+    lines: Vec<String>,
+}
+
+impl Run {
+    /// One JSON line: the frame index, where it came from and what it said (`body`, JSON).
+    fn line(&mut self, source: &str, body: &str) {
+        self.lines
+            .push(format!("{{\"frame\":{},\"{source}\":{body}}}", self.frame));
+    }
+
+    /// `t` as the ground decodes it: its postcard bytes, parsed back (the wire's `parse` mirrors `emit`).
+    fn telemetry_line(&mut self, source: &str, t: &Telemetry) {
+        let mut buf = [0u8; 1024];
+        let bytes = postcard::to_slice(t, &mut buf).unwrap();
+        let back: Telemetry = postcard::from_bytes(bytes).unwrap();
+        assert_eq!(&back, t, "postcard round trip");
+        // `to_string`, not a `Value`: the Allan sums are 128-bit integers.
+        self.line(source, &serde_json::to_string(&back).unwrap());
+    }
 }
 
 impl Run {
     fn drain(&mut self) {
         while let Some(o) = self.p.poll() {
             self.h.output(&o);
+            match &o {
+                Output::Telemetry(t) => self.telemetry_line("out", t),
+                Output::Fpga(c) => self.line("fpga", &format!("\"{c:?}\"")),
+                Output::PersistCalibration { tag } => {
+                    self.line("persist", &format!("{{\"tag\":{tag}}}"));
+                }
+            }
             match o {
                 Output::Telemetry(Telemetry::Health(_)) => self.seen.health_reports += 1,
                 Output::Telemetry(Telemetry::Fused(_)) => self.seen.fused_reports += 1,
@@ -237,6 +263,18 @@ impl Run {
         while let Some(t) = self.p.poll_dump() {
             self.h.bytes(&[3]);
             self.h.ser(&t);
+            // The snapshot keeps the Allan reports of every 16th channel and of the six fused axes (the hash has
+            // them all): 102 channels' worth would be three quarters of the file.
+            let keep = match &t {
+                Telemetry::Allan(a) => {
+                    let c = usize::from(a.channel);
+                    c % 16 == 0 || c >= ALLAN_CHANNELS - AXES
+                }
+                _ => true,
+            };
+            if keep {
+                self.telemetry_line("dump", &t);
+            }
             match t {
                 Telemetry::Allan(_) => self.seen.allan_reports += 1,
                 Telemetry::Faults(_) => self.seen.fault_reports += 1,
@@ -277,12 +315,14 @@ impl Run {
     }
 }
 
-/// Runs `n` frames with `config`; returns the hash.
-fn golden_run(config: PipelineConfig, n: usize, seed: u64) -> u64 {
+/// Runs `n` frames with `config`; returns the hash and the JSON lines.
+fn golden_run(config: PipelineConfig, n: usize, seed: u64) -> (u64, Vec<String>) {
     let mut r = Run {
         p: Pipeline::new(config, Box::new(AllanBank::new())),
         h: Fnv::new(),
         seen: Seen::default(),
+        frame: 0,
+        lines: Vec::new(),
     };
     r.p.load_calibration(&calibration(seed), CalSource::Stored);
     let mut rng = Rng::seed_from_u64(seed ^ 0x5555);
@@ -294,6 +334,7 @@ fn golden_run(config: PipelineConfig, n: usize, seed: u64) -> u64 {
     ];
     let mut seq = 0u16;
     for i in 0..n {
+        r.frame = i;
         if i % 3_000 == 0 {
             let (mode, robust) = combos[(i / 3_000) % 4];
             r.command(i as u16, Command::SetFusion { mode, robust });
@@ -362,6 +403,7 @@ fn golden_run(config: PipelineConfig, n: usize, seed: u64) -> u64 {
             count: ALLAN_CHANNELS as u8,
         },
     );
+    r.frame = n;
     r.command(8, Command::HealthRequest { detail: true });
     r.checkpoint();
     println!("{:?}", r.seen);
@@ -393,24 +435,16 @@ fn golden_run(config: PipelineConfig, n: usize, seed: u64) -> u64 {
     ] {
         assert!(count > 0, "the stream never had: {what}");
     }
-    r.h.0
+    (r.h.0, r.lines)
 }
 
-/// Hashes of the outputs' postcard bytes, recorded when the test moved here (the same code passed the old test with
-/// its `Debug`-text hashes `0x7932_b462_6e92_b806`, `0xe9b4_caca_5986_6aa6`, and both runs saw the same situations,
-/// `Seen`, count for count). Before the block noise estimator (module docs) the `Debug` hashes were
-/// `0x70d0_7e78_5ac0_c4d5`, `0x6737_b60e_ddf2_5fc4`, from commit `abea7a2`. Protocol version 2 appended
-/// `FusedReport::unix_us` (`None` here: the stream never sets the time); with that last byte of every `Fused`
-/// encoding left out (checked to be 0) the run gave the version-1 hashes `0x8cf2_625b_ef06_8de2`,
-/// `0x8dae_0c8c_caff_ea09`. Protocol version 3 appended the temperature counts and `thermal_at_cdeg` to
-/// `HealthReport`; with those bytes of every health encoding left out the run gave the version-2 hashes
-/// `0x551e_f831_b23d_7728`, `0x8cfe_d0c6_1bf1_a777`. Must not change otherwise.
+/// The hashes of the two configurations (their history: `docs/performance.md`, "The golden stream").
 const GOLDEN_DEFAULT: u64 = 0xb0bc_067d_5900_dded;
 const GOLDEN_FAST: u64 = 0x1566_91fd_88cb_054b;
 
 #[test]
 fn outputs_are_bit_exact() {
-    let default = golden_run(
+    let (default, _) = golden_run(
         // Without the navigation increments, which came after these hashes: the golden run guards the outputs it
         // recorded; `Nav` has its own tests against an f64 reference (`nav::tests`, `pipeline::tests`).
         PipelineConfig {
@@ -422,7 +456,7 @@ fn outputs_are_bit_exact() {
         11,
     );
     // Fast estimators and frequent weight changes, short stuck window, one output per frame.
-    let fast = golden_run(
+    let (fast, _) = golden_run(
         PipelineConfig {
             frames_per_output: 1,
             health_every: 50,
@@ -441,4 +475,61 @@ fn outputs_are_bit_exact() {
     );
     println!("golden hashes: {default:#018x} {fast:#018x}");
     assert_eq!((default, fast), (GOLDEN_DEFAULT, GOLDEN_FAST));
+}
+
+/// The snapshot of the default configuration, navigation on: every message the core sends in the golden stream, as
+/// JSON lines (`golden/default.jsonl`: the frame index, then `out` for the queued outputs, `dump` for the dump
+/// reports — the Allan reports of every 16th channel and of the fused axes —, `fpga` and `persist` for the
+/// platform's orders). A difference names the first line that changed;
+/// `UPDATE_GOLDEN=1 cargo test -p shared --test acceptance snapshot` rewrites the file after a deliberate change
+/// (review its diff: it is the change in what the MCU says).
+#[test]
+fn outputs_match_the_snapshot() {
+    let (_, lines) = golden_run(
+        PipelineConfig {
+            health_every: 3,
+            ..PipelineConfig::DEFAULT
+        },
+        24_000,
+        11,
+    );
+    assert!(
+        lines.iter().any(|l| l.contains("\"Nav\"")),
+        "navigation in the snapshot"
+    );
+    let actual = lines.join("\n") + "\n";
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/acceptance/golden/default.jsonl");
+    if std::env::var_os("UPDATE_GOLDEN").is_some() {
+        std::fs::write(&path, &actual).unwrap();
+        println!(
+            "snapshot rewritten: {} ({} lines)",
+            path.display(),
+            lines.len()
+        );
+        return;
+    }
+    let expected = std::fs::read_to_string(&path).unwrap_or_default();
+    if expected == actual {
+        return;
+    }
+    let out = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("golden-default.jsonl");
+    std::fs::write(&out, &actual).unwrap();
+    let exp: Vec<&str> = expected.lines().collect();
+    let first = exp
+        .iter()
+        .zip(&lines)
+        .position(|(e, a)| e != a)
+        .unwrap_or(exp.len().min(lines.len()));
+    panic!(
+        "the outputs differ from {} at line {} ({} lines expected, {} now)\n  expected: {}\n  now:      {}\n\
+         the whole new output: {} (diff it; UPDATE_GOLDEN=1 accepts it)",
+        path.display(),
+        first + 1,
+        exp.len(),
+        lines.len(),
+        exp.get(first).unwrap_or(&"(end)"),
+        lines.get(first).map_or("(end)", String::as_str),
+        out.display()
+    );
 }
