@@ -100,6 +100,20 @@ pub struct AdevRequest {
     pub cluster: bool,
 }
 
+/// Why an analysis or a Kalibr file could not be made.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum AdevError {
+    /// No sample interval: fewer than two samples, or time not increasing.
+    #[error("fewer than two samples, or time not increasing")]
+    NoInterval,
+    /// A requested column is not in the recording.
+    #[error("no column '{0}' in the recording")]
+    NoColumn(String),
+    /// The fits cannot make a Kalibr file (what is missing or not finite).
+    #[error("{0}")]
+    Kalibr(String),
+}
+
 /// One series to compute: label, kind, axis, group, members, data.
 type Job<'a> = (
     String,
@@ -116,7 +130,7 @@ pub fn analyze(
     rec: &Recording,
     req: &AdevRequest,
     tick: &(dyn Fn() + Sync),
-) -> Result<Vec<Series>, String> {
+) -> Result<Vec<Series>, AdevError> {
     analyze_with_means(rec, None, req, tick)
 }
 
@@ -128,13 +142,11 @@ pub fn analyze_with_means(
     means: Option<Vec<AxisMean>>,
     req: &AdevRequest,
     tick: &(dyn Fn() + Sync),
-) -> Result<Vec<Series>, String> {
-    let tau0 = rec
-        .sample_interval_s()
-        .ok_or("fewer than two samples, or time not increasing")?;
+) -> Result<Vec<Series>, AdevError> {
+    let tau0 = rec.sample_interval_s().ok_or(AdevError::NoInterval)?;
     for name in &req.columns {
         if rec.column(name).is_none() {
-            return Err(format!("no column '{name}' in the recording"));
+            return Err(AdevError::NoColumn(name.clone()));
         }
     }
     let mut jobs: Vec<Job> = rec
@@ -372,11 +384,11 @@ pub fn kalibr_yaml(series: &[Series], rate_hz: f64, topic: &str) -> String {
 /// has no cluster mean, a white-noise density is not a positive finite number (a constant, too short or broken
 /// recording fits none, and Kalibr would take 0 as a perfect sensor), a random walk is not finite, or the rate is
 /// not a positive finite number. `Ok` holds warnings (a random walk the record did not resolve, written as 0).
-pub fn kalibr_check(series: &[Series], rate_hz: f64) -> Result<Vec<String>, String> {
+pub fn kalibr_check(series: &[Series], rate_hz: f64) -> Result<Vec<String>, AdevError> {
     if !(rate_hz.is_finite() && rate_hz > 0.0) {
-        return Err(format!(
+        return Err(AdevError::Kalibr(format!(
             "the sample rate ({rate_hz} Hz) is not a positive number"
-        ));
+        )));
     }
     let mut warnings = Vec::new();
     for kind in [SensorKind::Gyro, SensorKind::Accel] {
@@ -385,25 +397,25 @@ pub fn kalibr_check(series: &[Series], rate_hz: f64) -> Result<Vec<String>, Stri
             .filter(|s| s.group.is_none() && s.kind == kind)
             .collect();
         if means.is_empty() {
-            return Err(format!(
+            return Err(AdevError::Kalibr(format!(
                 "no {} columns: Kalibr needs the noise of both the gyros and the accelerometers",
                 kind.name()
-            ));
+            )));
         }
         for s in &means {
             let f = &s.fit;
             if !(f.white.is_finite() && f.white > 0.0) {
-                return Err(format!(
+                return Err(AdevError::Kalibr(format!(
                     "{}: the noise fit has no white-noise density ({}); a constant, too short or non-finite \
                      recording cannot give one",
                     s.label, f.white
-                ));
+                )));
             }
             if !f.random_walk.is_finite() {
-                return Err(format!(
+                return Err(AdevError::Kalibr(format!(
                     "{}: the noise fit's random walk is {}",
                     s.label, f.random_walk
-                ));
+                )));
             }
         }
         if means.iter().all(|s| s.fit.random_walk == 0.0) {

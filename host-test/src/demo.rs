@@ -321,8 +321,7 @@ pub fn run(
         "Seed experiment through the flight core: single sensors vs cluster",
         &panels,
         3,
-    )
-    .map_err(anyhow::Error::msg)?;
+    )?;
     let (diagnosis, largest_shared_flicker, twin) =
         diagnose_record(&record.finish(), &out.join("diagnose"), &out.join("twin"))?;
     let thermal = crate::thermal_check::run(&crate::thermal_check::ThermalCheckOptions::QUICK)?;
@@ -361,7 +360,7 @@ fn diagnose_record(
 ) -> Result<Diagnosed> {
     use crate::diagnose::{Options, diagnose, report};
     let r = diagnose(rec, &Options::default()).map_err(anyhow::Error::msg)?;
-    report::write(&r, dir, "the demo's simulated record").map_err(anyhow::Error::msg)?;
+    report::write(&r, dir, "the demo's simulated record")?;
     let twin = crate::twin::close_the_loop(rec, &r, "the demo's record", twin_dir, 2)?;
     std::fs::write(dir.join("diagnose.json"), serde_json::to_string_pretty(&r)?)?;
     let flicker = r

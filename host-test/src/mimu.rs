@@ -78,24 +78,28 @@ pub struct Frame {
 }
 
 /// Why a 106-byte block is not a frame.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum FrameError {
     /// Fewer than [`FRAME_LEN`] bytes.
+    #[error("only {len} of {FRAME_LEN} bytes")]
     Short {
         /// Bytes available.
         len: usize,
     },
     /// First byte is not [`HEADER`].
+    #[error("header 0x{found:02X}, expected 0x{HEADER:02X}")]
     Header {
         /// Byte found.
         found: u8,
     },
     /// Payload size is not [`PAYLOAD_LEN`].
+    #[error("payload size {found}, expected {PAYLOAD_LEN}")]
     PayloadSize {
         /// Size found.
         found: u8,
     },
     /// Checksum mismatch.
+    #[error("checksum 0x{stored:04X} stored, 0x{computed:04X} computed")]
     Checksum {
         /// Checksum stored in the frame.
         stored: u16,
@@ -103,26 +107,6 @@ pub enum FrameError {
         computed: u16,
     },
 }
-
-impl fmt::Display for FrameError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::Short { len } => write!(f, "only {len} of {FRAME_LEN} bytes"),
-            Self::Header { found } => write!(f, "header 0x{found:02X}, expected 0x{HEADER:02X}"),
-            Self::PayloadSize { found } => {
-                write!(f, "payload size {found}, expected {PAYLOAD_LEN}")
-            }
-            Self::Checksum { stored, computed } => {
-                write!(
-                    f,
-                    "checksum 0x{stored:04X} stored, 0x{computed:04X} computed"
-                )
-            }
-        }
-    }
-}
-
-impl std::error::Error for FrameError {}
 
 /// Frame checksum: sum of the bytes modulo 2¹⁶.
 pub fn checksum(bytes: &[u8]) -> u16 {
@@ -324,9 +308,10 @@ impl Default for ParseOptions {
 }
 
 /// Why a recording could not be parsed.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum MimuError {
     /// The file could not be read.
+    #[error("{}: {source}", path.display())]
     Io {
         /// File.
         path: PathBuf,
@@ -334,6 +319,7 @@ pub enum MimuError {
         source: std::io::Error,
     },
     /// No valid frame in the input.
+    #[error("no valid MIMU4444 frame in {len} bytes{}", first_problem(first))]
     NoFrames {
         /// Input length, bytes.
         len: usize,
@@ -341,6 +327,10 @@ pub enum MimuError {
         first: Option<ParseEvent>,
     },
     /// Too much of the input is not frames.
+    #[error(
+        "{skipped} of {len} bytes are not valid frames{}",
+        first_problem(first)
+    )]
     TooMuchSkipped {
         /// Bytes skipped.
         skipped: usize,
@@ -350,41 +340,14 @@ pub enum MimuError {
         first: Option<ParseEvent>,
     },
     /// Strict mode: the first anomaly.
+    #[error("malformed MIMU4444 stream at {0}")]
     Anomaly(ParseEvent),
 }
 
-impl fmt::Display for MimuError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let first = |f: &mut fmt::Formatter<'_>, e: &Option<ParseEvent>| match e {
-            Some(e) => write!(f, "; first problem at {e}"),
-            None => Ok(()),
-        };
-        match self {
-            Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
-            Self::NoFrames { len, first: e } => {
-                write!(f, "no valid MIMU4444 frame in {len} bytes")?;
-                first(f, e)
-            }
-            Self::TooMuchSkipped {
-                skipped,
-                len,
-                first: e,
-            } => {
-                write!(f, "{skipped} of {len} bytes are not valid frames")?;
-                first(f, e)
-            }
-            Self::Anomaly(e) => write!(f, "malformed MIMU4444 stream at {e}"),
-        }
-    }
-}
-
-impl std::error::Error for MimuError {
-    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
-        match self {
-            Self::Io { source, .. } => Some(source),
-            _ => None,
-        }
-    }
+/// `; first problem at …` when there is one.
+fn first_problem(e: &Option<ParseEvent>) -> String {
+    e.as_ref()
+        .map_or(String::new(), |e| format!("; first problem at {e}"))
 }
 
 /// A parsed recording.

@@ -45,9 +45,26 @@ pub struct Panel {
     pub curves: Vec<Curve>,
 }
 
-static FONT: OnceLock<Result<(), String>> = OnceLock::new();
+/// Why a plot was not drawn.
+#[derive(Clone, Debug, thiserror::Error)]
+pub enum PlotError {
+    /// No font file found.
+    #[error("no font for plot text: install fonts-dejavu-core or set GROUND_FONT to a .ttf file")]
+    NoFont,
+    /// The font file could not be parsed.
+    #[error("the plot font could not be read")]
+    BadFont,
+    /// The file name does not say PNG or SVG.
+    #[error("{}: plot files must end in .png or .svg", .0.display())]
+    Extension(std::path::PathBuf),
+    /// The drawing backend failed (e.g. the file could not be written).
+    #[error("drawing the plot: {0}")]
+    Draw(String),
+}
 
-fn ensure_font() -> Result<(), String> {
+static FONT: OnceLock<Result<(), PlotError>> = OnceLock::new();
+
+fn ensure_font() -> Result<(), PlotError> {
     FONT.get_or_init(|| {
         let candidates = [
             std::env::var("GROUND_FONT").unwrap_or_default(),
@@ -59,10 +76,10 @@ fn ensure_font() -> Result<(), String> {
             .iter()
             .filter(|p| !p.is_empty())
             .find_map(|p| std::fs::read(p).ok())
-            .ok_or("no font for plot text: install fonts-dejavu-core or set GROUND_FONT to a .ttf file")?;
+            .ok_or(PlotError::NoFont)?;
         let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
         plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
-            .map_err(|_| "the plot font could not be read".to_string())
+            .map_err(|_| PlotError::BadFont)
     })
     .clone()
 }
@@ -84,7 +101,7 @@ pub fn adev_panels(
     title: &str,
     panels: &[Panel],
     columns: usize,
-) -> Result<(), String> {
+) -> Result<(), PlotError> {
     ensure_font()?;
     let columns = columns.max(1);
     let rows = panels.len().div_ceil(columns).max(1);
@@ -109,17 +126,14 @@ pub fn adev_panels(
             columns,
             rows,
         ),
-        _ => Err(format!(
-            "{}: plot files must end in .png or .svg",
-            path.display()
-        )),
+        _ => Err(PlotError::Extension(path.to_path_buf())),
     }
 }
 
 /// The Allan-deviation figure of `ground allan`: per sensor kind and axis a panel with the single sensors thin, the
 /// independent (√N) expectation dashed and the cluster mean bold with its confidence bars; `source` names the recording
 /// in the title.
-pub fn adev_series(path: &Path, series: &[adev::Series], source: &Path) -> Result<(), String> {
+pub fn adev_series(path: &Path, series: &[adev::Series], source: &Path) -> Result<(), PlotError> {
     let mut panels = Vec::new();
     for kind in [SensorKind::Gyro, SensorKind::Accel] {
         for axis in 0..3 {
@@ -186,8 +200,8 @@ fn draw<DB: DrawingBackend>(
     panels: &[Panel],
     columns: usize,
     rows: usize,
-) -> Result<(), String> {
-    let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
+) -> Result<(), PlotError> {
+    let e = |x: DrawingAreaErrorKind<DB::ErrorType>| PlotError::Draw(x.to_string());
     root.fill(&WHITE).map_err(e)?;
     let root = root.titled(title, ("sans-serif", 22)).map_err(e)?;
     for (area, panel) in root.split_evenly((rows, columns)).iter().zip(panels) {

@@ -53,7 +53,6 @@ pub use records::board_records;
 pub use report::{ImuResidual, ResidualReport, static_residuals_mg};
 pub use thermal::{ThermalFit, ThermalOptions, fit_thermal};
 
-use std::fmt;
 use std::path::PathBuf;
 
 /// A 3-vector.
@@ -62,13 +61,16 @@ pub type Vec3 = [f64; 3];
 pub type Mat3 = [[f64; 3]; 3];
 
 /// Why a calibration step failed.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum CalibError {
     /// An option is out of its domain.
+    #[error("invalid option: {0}")]
     InvalidOption(&'static str),
     /// An input is NaN or infinite.
+    #[error("non-finite input: {0}")]
     NonFinite(&'static str),
     /// Not enough static poses (or records) for the model.
+    #[error("too few static poses: {found}, need at least {needed}")]
     TooFewPoses {
         /// Needed.
         needed: usize,
@@ -76,8 +78,10 @@ pub enum CalibError {
         found: usize,
     },
     /// The poses (or records) do not determine the parameters (directions not spread, singular matrix).
+    #[error("degenerate input: {0}")]
     Degenerate(&'static str),
     /// Inputs disagree on the number of IMUs / groups.
+    #[error("{what}: expected {expected}, found {found}")]
     Count {
         /// What is counted.
         what: &'static str,
@@ -87,13 +91,23 @@ pub enum CalibError {
         found: usize,
     },
     /// A value does not fit the fixed-point table (Q19.12 `i32`, or a bias beyond ±65536 counts).
+    #[error("out of range: {0}")]
     OutOfRange(String),
     /// A thermal fit's record has no frame with a valid board temperature.
+    #[error(
+        "none of the {frames} frames carries a valid board temperature: a thermal fit needs a record with \
+         the temperature (frame flag 'temperature valid')"
+    )]
     NoTemperature {
         /// Frames in the record.
         frames: usize,
     },
     /// A thermal fit's record spans too little board temperature.
+    #[error(
+        "the record spans {:.2} °C of board temperature ({from_c:.2} … {to_c:.2} °C); a thermal fit needs at \
+         least {needed_c} °C: record the still board over a temperature ramp or cycle",
+        to_c - from_c
+    )]
     TemperatureSpan {
         /// Lowest temperature, °C.
         from_c: f64,
@@ -103,8 +117,10 @@ pub enum CalibError {
         needed_c: f64,
     },
     /// A calibration table failed to encode or decode.
+    #[error("calibration table: {0:?} ({why})", why = table_error(.0))]
     Table(shared::calib::CalError),
     /// A file could not be read or written.
+    #[error("{}: {source}", path.display())]
     Io {
         /// File.
         path: PathBuf,
@@ -112,49 +128,13 @@ pub enum CalibError {
         source: std::io::Error,
     },
     /// A file's contents could not be parsed (or written).
+    #[error("{}: {message}", path.display())]
     Format {
         /// File.
         path: PathBuf,
         /// What went wrong.
         message: String,
     },
-}
-
-impl fmt::Display for CalibError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::InvalidOption(s) => write!(f, "invalid option: {s}"),
-            Self::NonFinite(s) => write!(f, "non-finite input: {s}"),
-            Self::TooFewPoses { needed, found } => {
-                write!(f, "too few static poses: {found}, need at least {needed}")
-            }
-            Self::Degenerate(s) => write!(f, "degenerate input: {s}"),
-            Self::Count {
-                what,
-                expected,
-                found,
-            } => write!(f, "{what}: expected {expected}, found {found}"),
-            Self::OutOfRange(s) => write!(f, "out of range: {s}"),
-            Self::NoTemperature { frames } => write!(
-                f,
-                "none of the {frames} frames carries a valid board temperature: a thermal fit needs a record with \
-                 the temperature (frame flag 'temperature valid')"
-            ),
-            Self::TemperatureSpan {
-                from_c,
-                to_c,
-                needed_c,
-            } => write!(
-                f,
-                "the record spans {:.2} °C of board temperature ({from_c:.2} … {to_c:.2} °C); a thermal fit needs at \
-                 least {needed_c} °C: record the still board over a temperature ramp or cycle",
-                to_c - from_c
-            ),
-            Self::Table(e) => write!(f, "calibration table: {e:?} ({})", table_error(e)),
-            Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
-            Self::Format { path, message } => write!(f, "{}: {message}", path.display()),
-        }
-    }
 }
 
 /// What a table error means.
@@ -176,15 +156,6 @@ fn table_error(e: &shared::calib::CalError) -> String {
         E::WeightOutOfRange => {
             "a fixed fusion weight beyond ±1, or an axis whose weights do not sum to a positive value"
                 .into()
-        }
-    }
-}
-
-impl std::error::Error for CalibError {
-    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
-        match self {
-            Self::Io { source, .. } => Some(source),
-            _ => None,
         }
     }
 }

@@ -10,9 +10,28 @@ pub const TEXT_FILE: &str = "report.txt";
 /// Plot file name inside the output folder.
 pub const PLOT_FILE: &str = "diagnose.png";
 
+/// Why the report was not written.
+#[derive(Debug, thiserror::Error)]
+pub enum WriteError {
+    /// A file or the folder could not be written.
+    #[error("writing {}: {source}", path.display())]
+    Io {
+        /// The file or folder.
+        path: std::path::PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The plot was not drawn.
+    #[error(transparent)]
+    Plot(#[from] plot::PlotError),
+}
+
 /// Writes the text report and the plot into `dir` (created if missing); returns the text.
-pub fn write(r: &Report, dir: &Path, source: &str) -> Result<String, String> {
-    let err = |what: &Path, e: std::io::Error| format!("writing {}: {e}", what.display());
+pub fn write(r: &Report, dir: &Path, source: &str) -> Result<String, WriteError> {
+    let err = |what: &Path, source: std::io::Error| WriteError::Io {
+        path: what.to_path_buf(),
+        source,
+    };
     std::fs::create_dir_all(dir).map_err(|e| err(dir, e))?;
     let text = text(r, source);
     let path = dir.join(TEXT_FILE);
@@ -171,7 +190,7 @@ pub fn text(r: &Report, source: &str) -> String {
 }
 
 /// Measured vs predicted cluster deviation before and after, per axis (held-out half).
-pub fn plot(r: &Report, path: &Path, source: &str) -> Result<(), String> {
+pub fn plot(r: &Report, path: &Path, source: &str) -> Result<(), plot::PlotError> {
     let panels: Vec<Panel> = r
         .curves
         .iter()

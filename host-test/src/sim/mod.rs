@@ -38,7 +38,6 @@ pub use noise::{
     expected_avar,
 };
 
-use core::fmt;
 use rand_xoshiro::rand_core::SeedableRng;
 use rand_xoshiro::{SplitMix64, Xoshiro256PlusPlus};
 
@@ -48,24 +47,18 @@ pub const GROUPS: usize = shared::wire::frame::GROUPS;
 pub const CHANNELS: usize = shared::wire::frame::RAW_PER_GROUP;
 
 /// Why a configuration or a request was rejected.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum SimError {
     /// A parameter is out of its domain; the text names it and the rule.
+    #[error("invalid simulation parameter: {0}")]
     Param(String),
     /// A matrix (true calibration) is singular or badly conditioned.
+    #[error("singular matrix: {0}")]
     Singular(String),
+    /// A command-line value (e.g. `--motion`) does not parse; the text names it and what was expected.
+    #[error("{0}")]
+    Syntax(String),
 }
-
-impl fmt::Display for SimError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            SimError::Param(s) => write!(f, "invalid simulation parameter: {s}"),
-            SimError::Singular(s) => write!(f, "singular matrix: {s}"),
-        }
-    }
-}
-
-impl std::error::Error for SimError {}
 
 /// Returns `Err(SimError::Param)` unless `ok`.
 pub(crate) fn check(ok: bool, what: impl FnOnce() -> String) -> Result<(), SimError> {

@@ -55,27 +55,28 @@ fn rz(x: f64) -> M3 {
 
 impl Motion {
     /// Parses `coning:half_angle_deg=A,freq_hz=F` or `sculling:angle_amp_deg=A,accel_amp_g=B,freq_hz=F`.
-    pub fn parse(s: &str) -> Result<Self, String> {
+    pub fn parse(s: &str) -> Result<Self, super::SimError> {
         let (kind, rest) = s.split_once(':').unwrap_or((s, ""));
         let get = {
             let pairs: Vec<(&str, &str)> =
                 rest.split(',').filter_map(|p| p.split_once('=')).collect();
-            move |key: &str| -> Result<f64, String> {
+            move |key: &str| -> Result<f64, super::SimError> {
                 let v = pairs
                     .iter()
                     .find(|(k, _)| k.trim() == key)
-                    .ok_or_else(|| format!("--motion {kind}: missing {key}=…"))?
+                    .ok_or_else(|| {
+                        super::SimError::Syntax(format!("--motion {kind}: missing {key}=…"))
+                    })?
                     .1;
-                let x: f64 = v
-                    .trim()
-                    .parse()
-                    .map_err(|_| format!("--motion {kind}: {key}={v} is not a number"))?;
+                let x: f64 = v.trim().parse().map_err(|_| {
+                    super::SimError::Syntax(format!("--motion {kind}: {key}={v} is not a number"))
+                })?;
                 if x.is_finite() && x > 0.0 {
                     Ok(x)
                 } else {
-                    Err(format!(
+                    Err(super::SimError::Syntax(format!(
                         "--motion {kind}: {key} must be a positive number, found {v}"
-                    ))
+                    )))
                 }
             }
         };
@@ -89,10 +90,10 @@ impl Motion {
                 accel_amp_g: get("accel_amp_g")?,
                 freq_hz: get("freq_hz")?,
             }),
-            _ => Err(format!(
+            _ => Err(super::SimError::Syntax(format!(
                 "--motion: expected coning:half_angle_deg=A,freq_hz=F or \
                  sculling:angle_amp_deg=A,accel_amp_g=B,freq_hz=F, found {s}"
-            )),
+            ))),
         }
     }
 

@@ -323,7 +323,7 @@ impl Comparison {
 impl Comparison {
     /// The overlay plot: one panel per axis, the first recording's cluster and typical sensor against the
     /// second's, with their 68 % intervals (`.png` or `.svg`).
-    pub fn plot(&self, path: &std::path::Path, title: &str) -> Result<(), String> {
+    pub fn plot(&self, path: &std::path::Path, title: &str) -> Result<(), crate::plot::PlotError> {
         use crate::plot::{Curve, Panel, Style, adev_panels};
         let curve = |v: &CurveVerdict, first: bool, style: Style, label: &str| {
             let d = |t: &TauGap| if first { t.a } else { t.b };

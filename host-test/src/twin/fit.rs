@@ -69,7 +69,7 @@ pub fn fit(rec: &Recording, report: &Report, source: &str) -> Result<ClusterMode
         effects,
         axes,
     };
-    model.validate().map_err(TwinError::Invalid)?;
+    model.validate()?;
     Ok(model)
 }
 

@@ -46,6 +46,9 @@ pub enum TwinError {
     /// The inputs cannot give a model or a recording.
     #[error("{0}")]
     Invalid(String),
+    /// A plot was not drawn.
+    #[error(transparent)]
+    Plot(#[from] crate::plot::PlotError),
 }
 
 /// The five noise terms of one sensor axis or shared process, in physical units (gyro °/s, accelerometer g).
@@ -274,7 +277,10 @@ impl ClusterModel {
                 m.format
             )));
         }
-        m.validate().map_err(format)?;
+        m.validate().map_err(|e| match e {
+            TwinError::Invalid(reason) => format(reason),
+            other => other,
+        })?;
         Ok(m)
     }
 
@@ -297,52 +303,64 @@ impl ClusterModel {
 
     /// Checks what a hand-edited file could get wrong: positive rate and duration, finite non-negative terms,
     /// known axis names, sensors and shared processes on groups of the record.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), TwinError> {
         let r = &self.record;
         if !(r.rate_hz.is_finite() && r.rate_hz > 0.0) {
-            return Err(format!("record.rate_hz = {} must be > 0", r.rate_hz));
+            return Err(TwinError::Invalid(format!(
+                "record.rate_hz = {} must be > 0",
+                r.rate_hz
+            )));
         }
         if !(r.duration_s.is_finite() && r.duration_s > 0.0) {
-            return Err(format!("record.duration_s = {} must be > 0", r.duration_s));
+            return Err(TwinError::Invalid(format!(
+                "record.duration_s = {} must be > 0",
+                r.duration_s
+            )));
         }
         for a in &self.axes {
             if a.kind_axis().is_none() {
-                return Err(format!("axis \"{}\": expected gx … az", a.axis));
+                return Err(TwinError::Invalid(format!(
+                    "axis \"{}\": expected gx … az",
+                    a.axis
+                )));
             }
             let ok = |t: &NoiseTerms| t.is_valid();
             if !ok(&a.typical) {
-                return Err(format!("{}: typical terms must be finite and ≥ 0", a.axis));
+                return Err(TwinError::Invalid(format!(
+                    "{}: typical terms must be finite and ≥ 0",
+                    a.axis
+                )));
             }
             for s in &a.sensors {
                 if !ok(&s.independent) || !s.mean.is_finite() || !s.thermal_per_c.is_finite() {
-                    return Err(format!(
+                    return Err(TwinError::Invalid(format!(
                         "{} group {}: terms must be finite and ≥ 0",
                         a.axis, s.group
-                    ));
+                    )));
                 }
                 if !r.groups.contains(&s.group) {
-                    return Err(format!(
+                    return Err(TwinError::Invalid(format!(
                         "{}: group {} is not in record.groups",
                         a.axis, s.group
-                    ));
+                    )));
                 }
             }
             for p in &a.shared {
                 if !ok(&p.terms) {
-                    return Err(format!(
+                    return Err(TwinError::Invalid(format!(
                         "{} {}: terms must be finite and ≥ 0",
                         a.axis, p.kind
-                    ));
+                    )));
                 }
                 if let Some(g) = p
                     .groups
                     .iter()
                     .find(|g| !a.sensors.iter().any(|s| s.group == **g))
                 {
-                    return Err(format!(
+                    return Err(TwinError::Invalid(format!(
                         "{} {}: group {g} has no sensor on this axis",
                         a.axis, p.kind
-                    ));
+                    )));
                 }
             }
         }
@@ -357,9 +375,9 @@ impl ClusterModel {
                     && h.phase_rad.is_finite()
             });
             if !(finite && harmonics && t.noise.is_valid()) {
-                return Err(
+                return Err(TwinError::Invalid(
                     "temperature: values must be finite, periods > 0, noise terms ≥ 0".into(),
-                );
+                ));
             }
         }
         Ok(())
@@ -417,8 +435,7 @@ pub fn close_the_loop(
             serde_json::to_string_pretty(&c).map_err(|e| TwinError::Invalid(e.to_string()))?;
         std::fs::write(&path, json).map_err(io(&path))?;
         if !without_effects {
-            c.plot(&dir.join("compare.png"), &format!("{source} vs its twin"))
-                .map_err(TwinError::Invalid)?;
+            c.plot(&dir.join("compare.png"), &format!("{source} vs its twin"))?;
         }
         out.push(c);
     }

@@ -83,7 +83,7 @@ pub fn temperature(
 
 /// Plays `model` (see the module docs).
 pub fn play(model: &ClusterModel, opts: &PlayOptions) -> Result<Recording, TwinError> {
-    model.validate().map_err(TwinError::Invalid)?;
+    model.validate()?;
     let rate = opts.rate_hz.unwrap_or(model.record.rate_hz);
     let n = opts.samples.unwrap_or(model.record.samples);
     if n < 2 {

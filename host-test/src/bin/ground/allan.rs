@@ -111,8 +111,7 @@ pub fn run(a: Args) -> Result<()> {
     } + 6;
     let t_read = t0.elapsed().as_secs_f64();
     let pb = bar(n_series as u64, "series");
-    let series =
-        adev::analyze_with_means(rec, means, &req, &|| pb.inc(1)).map_err(anyhow::Error::msg)?;
+    let series = adev::analyze_with_means(rec, means, &req, &|| pb.inc(1))?;
     pb.finish_and_clear();
     let t_analysis = t0.elapsed().as_secs_f64() - t_read;
     if series.iter().all(|s| s.points.is_empty()) {
@@ -153,7 +152,7 @@ pub fn run(a: Args) -> Result<()> {
     );
     print_summary(&series);
     if let Some(p) = &a.plot {
-        plot::adev_series(p, &series, &a.recording).map_err(anyhow::Error::msg)?;
+        plot::adev_series(p, &series, &a.recording)?;
         println!("plot: {}", p.display());
     }
     if let Some(f) = &a.fit {

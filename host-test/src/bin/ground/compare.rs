@@ -51,8 +51,7 @@ pub fn run(a: Args) -> Result<()> {
     c.plot(
         &png,
         &format!("{} vs {}", a.real.display(), a.sim.display()),
-    )
-    .map_err(anyhow::Error::msg)?;
+    )?;
     print!("{}", c.summary());
     println!("json: {}, plot: {}", json.display(), png.display());
     Ok(())

@@ -88,7 +88,7 @@ pub fn run(a: Args) -> Result<()> {
     let r = diagnose::diagnose(&loaded.recording, &opts).map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
     let source = a.recording.display().to_string();
-    let text = report::write(&r, &a.out, &source).map_err(anyhow::Error::msg)?;
+    let text = report::write(&r, &a.out, &source)?;
     print!("{text}");
     println!(
         "\nreport: {}, plot: {}",
