@@ -80,10 +80,6 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    use host_test::calibrate::{
-        self as cal, BiasModel, BiasOptions, DetectOptions, StaticCalOptions,
-    };
-    let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
     if let Some(rec) = &a.thermal {
         return run_thermal(&a, rec);
     }
@@ -94,92 +90,108 @@ pub fn run(a: Args) -> Result<()> {
         return run_from_model(&a, model);
     }
     if let Some(rec) = &a.static_rec {
-        let m = host_test::mimu::read(rec).map_err(|e| match e {
-            // The I/O error names the file already.
-            host_test::mimu::MimuError::Io { .. } => anyhow::anyhow!("{e}"),
-            _ => anyhow::anyhow!("{}: {e}", rec.display()),
-        })?;
-        let detect = DetectOptions {
-            min_duration_s: a.min_static_s,
-            ..DetectOptions::default()
-        };
-        let poses = cal::detect_static(&m, &detect).map_err(cerr)?;
+        return run_static(&a, rec);
+    }
+    run_rate_table(&a)
+}
+
+/// `--static`: the poses found in a MIMU4444 stream, then the calibration (or only new biases, `--biases-only`).
+fn run_static(a: &Args, rec: &std::path::Path) -> Result<()> {
+    use host_test::calibrate::{
+        self as cal, BiasModel, BiasOptions, DetectOptions, StaticCalOptions,
+    };
+    let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
+    let m = host_test::mimu::read(rec).map_err(|e| match e {
+        // The I/O error names the file already.
+        host_test::mimu::MimuError::Io { .. } => anyhow::anyhow!("{e}"),
+        _ => anyhow::anyhow!("{}: {e}", rec.display()),
+    })?;
+    let detect = DetectOptions {
+        min_duration_s: a.min_static_s,
+        ..DetectOptions::default()
+    };
+    let poses = cal::detect_static(&m, &detect).map_err(cerr)?;
+    println!(
+        "{}: {} frames, {:.1} s; {} static intervals (window {} s, accel std < {} g, gyro std < {} °/s, ≥ {} s):",
+        rec.display(),
+        m.frames.len(),
+        m.duration_s(),
+        poses.len(),
+        detect.window_s,
+        detect.accel_std_max_g,
+        detect.gyro_std_max_dps,
+        detect.min_duration_s
+    );
+    for (i, p) in poses.iter().enumerate() {
+        let f = p.accel_g.first().copied().unwrap_or_default();
         println!(
-            "{}: {} frames, {:.1} s; {} static intervals (window {} s, accel std < {} g, gyro std < {} °/s, ≥ {} s):",
+            "  {:2}: {:7.1} … {:7.1} s ({:5.1} s), IMU 1 specific force [{:+.3} {:+.3} {:+.3}] g, change {:.2} mg",
+            i + 1,
+            p.start_s,
+            p.end_s,
+            p.end_s - p.start_s,
+            f[0],
+            f[1],
+            f[2],
+            p.accel_change_mg
+        );
+    }
+    if poses.is_empty() {
+        bail!(
+            "{}: no static interval found (window {} s, accel std < {} g, gyro std < {} °/s, at least {} s \
+             after {} s trimmed at each end; a shorter --min-static-s finds shorter ones)",
             rec.display(),
-            m.frames.len(),
-            m.duration_s(),
-            poses.len(),
             detect.window_s,
             detect.accel_std_max_g,
             detect.gyro_std_max_dps,
-            detect.min_duration_s
+            detect.min_duration_s,
+            detect.trim_s
         );
-        for (i, p) in poses.iter().enumerate() {
-            let f = p.accel_g.first().copied().unwrap_or_default();
-            println!(
-                "  {:2}: {:7.1} … {:7.1} s ({:5.1} s), IMU 1 specific force [{:+.3} {:+.3} {:+.3}] g, change {:.2} mg",
-                i + 1,
-                p.start_s,
-                p.end_s,
-                p.end_s - p.start_s,
-                f[0],
-                f[1],
-                f[2],
-                p.accel_change_mg
-            );
-        }
-        if poses.is_empty() {
-            bail!(
-                "{}: no static interval found (window {} s, accel std < {} g, gyro std < {} °/s, at least {} s \
-                 after {} s trimmed at each end; a shorter --min-static-s finds shorter ones)",
-                rec.display(),
-                detect.window_s,
-                detect.accel_std_max_g,
-                detect.gyro_std_max_dps,
-                detect.min_duration_s,
-                detect.trim_s
-            );
-        }
-        let file = if a.biases_only {
-            let from = a
-                .from
-                .as_deref()
-                .context("--biases-only needs --from FILE")?;
-            let old = cal::read_calibration::<{ load::MIMU_IMUS }>(from).map_err(cerr)?;
-            let (new, upd) =
-                cal::reestimate_biases(&old, &poses, &BiasOptions::default()).map_err(cerr)?;
-            println!(
-                "biases re-estimated (matrices and rotations of {} kept); static |a| − 1 g RMS per IMU, mg:",
-                from.display()
-            );
-            for (i, (o, n)) in upd.old_rms_mg.iter().zip(&upd.new_rms_mg).enumerate() {
-                println!(
-                    "  IMU {}: {:.3} → {:.3} ({:?})",
-                    i + 1,
-                    o,
-                    n,
-                    upd.method.get(i)
-                );
-            }
-            new
-        } else {
-            let opts = StaticCalOptions {
-                bias_model: if a.no_drift {
-                    BiasModel::Constant
-                } else {
-                    BiasModel::LinearDrift
-                },
-                ..StaticCalOptions::default()
-            };
-            let c = cal::calibrate_static(&poses, &opts).map_err(cerr)?;
-            print!("{}", c.report.to_text());
-            c.to_file(a.cal_id, &rec.display().to_string())
-        };
-        cal::write_calibration::<{ load::MIMU_IMUS }>(&file, &a.out).map_err(cerr)?;
-        println!("calibration: {}", a.out.display());
-        return Ok(());
     }
+    let file = if a.biases_only {
+        let from = a
+            .from
+            .as_deref()
+            .context("--biases-only needs --from FILE")?;
+        let old = cal::read_calibration::<{ load::MIMU_IMUS }>(from).map_err(cerr)?;
+        let (new, upd) =
+            cal::reestimate_biases(&old, &poses, &BiasOptions::default()).map_err(cerr)?;
+        println!(
+            "biases re-estimated (matrices and rotations of {} kept); static |a| − 1 g RMS per IMU, mg:",
+            from.display()
+        );
+        for (i, (o, n)) in upd.old_rms_mg.iter().zip(&upd.new_rms_mg).enumerate() {
+            println!(
+                "  IMU {}: {:.3} → {:.3} ({:?})",
+                i + 1,
+                o,
+                n,
+                upd.method.get(i)
+            );
+        }
+        new
+    } else {
+        let opts = StaticCalOptions {
+            bias_model: if a.no_drift {
+                BiasModel::Constant
+            } else {
+                BiasModel::LinearDrift
+            },
+            ..StaticCalOptions::default()
+        };
+        let c = cal::calibrate_static(&poses, &opts).map_err(cerr)?;
+        print!("{}", c.report.to_text());
+        c.to_file(a.cal_id, &rec.display().to_string())
+    };
+    cal::write_calibration::<{ load::MIMU_IMUS }>(&file, &a.out).map_err(cerr)?;
+    println!("calibration: {}", a.out.display());
+    Ok(())
+}
+
+/// `--rate-table`: the 18 frame logs' mean codes, fitted per group.
+fn run_rate_table(a: &Args) -> Result<()> {
+    use host_test::calibrate as cal;
+    let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
     // Rate table: mean raw codes of every group in each of the 18 records.
     let mut logs = Vec::with_capacity(a.rate_table.len());
     for path in &a.rate_table {
@@ -266,59 +278,7 @@ fn run_thermal(a: &Args, rec: &std::path::Path) -> Result<()> {
             "the record's mean"
         }
     );
-    let lin = |g: usize, c: usize| {
-        let t = &fit.terms[g];
-        if c < 4 {
-            (t.gyro_lin_counts_per_c[c], t.gyro_quad_counts_per_c2[c])
-        } else {
-            (
-                t.accel_lin_counts_per_c[c - 4],
-                t.accel_quad_counts_per_c2[c - 4],
-            )
-        }
-    };
-    println!(
-        "code = a + lin·(T − T_ref) + quad·(T − T_ref)² per raw channel; standard errors from the residuals' \
-         Haar (Allan) variances, extrapolated to the record's length by their noise type"
-    );
-    if a.verbose {
-        println!(
-            "  group channel     lin counts/°C   ±SE     quad counts/°C²   ±SE        residual RMS counts"
-        );
-        for g in 0..16 {
-            for (c, name) in RAW_NAMES.iter().enumerate() {
-                let (l, q) = lin(g, c);
-                let f = &m.groups[g];
-                println!(
-                    "  {g:5} {name:10} {l:+12.4} {:8.4} {q:+14.6} {:10.6} {:14.2}",
-                    f.lin_se_counts_per_c[c], f.quad_se_counts_per_c2[c], f.residual_rms_counts[c]
-                );
-            }
-        }
-    } else {
-        println!(
-            "  channel     lin counts/°C: min … max over 16 groups  (largest SE)   quad counts/°C²: min … max  \
-             (largest SE)   residual RMS counts: max"
-        );
-        for (c, name) in RAW_NAMES.iter().enumerate() {
-            let range = |f: &dyn Fn(usize) -> f64| {
-                (0..16)
-                    .map(f)
-                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
-                        (l.min(x), h.max(x))
-                    })
-            };
-            let max = |f: &dyn Fn(usize) -> f64| (0..16).map(f).fold(0f64, f64::max);
-            let (l0, l1) = range(&|g| lin(g, c).0);
-            let (q0, q1) = range(&|g| lin(g, c).1);
-            println!(
-                "  {name:10} {l0:+9.4} … {l1:+9.4}  ({:.4})                {q0:+9.6} … {q1:+9.6}  ({:.6})      {:.2}",
-                max(&|g| m.groups[g].lin_se_counts_per_c[c]),
-                max(&|g| m.groups[g].quad_se_counts_per_c2[c]),
-                max(&|g| m.groups[g].residual_rms_counts[c])
-            );
-        }
-    }
+    print_thermal_terms(&fit, a.verbose);
     // What the fit cannot use: the code at T_ref of a still board is the bias plus the true input.
     let mut d: Vec<f64> = (0..16)
         .flat_map(|g| {
@@ -515,4 +475,62 @@ fn run_from_model(a: &Args, path: &std::path::Path) -> Result<()> {
         }
     );
     Ok(())
+}
+
+/// The fitted terms: every group and raw channel (`verbose`), or per channel type their range over the groups.
+fn print_thermal_terms(fit: &host_test::calibrate::ThermalFit, verbose: bool) {
+    let m = &fit.meta;
+    let lin = |g: usize, c: usize| {
+        let t = &fit.terms[g];
+        if c < 4 {
+            (t.gyro_lin_counts_per_c[c], t.gyro_quad_counts_per_c2[c])
+        } else {
+            (
+                t.accel_lin_counts_per_c[c - 4],
+                t.accel_quad_counts_per_c2[c - 4],
+            )
+        }
+    };
+    println!(
+        "code = a + lin·(T − T_ref) + quad·(T − T_ref)² per raw channel; standard errors from the residuals' \
+         Haar (Allan) variances, extrapolated to the record's length by their noise type"
+    );
+    if verbose {
+        println!(
+            "  group channel     lin counts/°C   ±SE     quad counts/°C²   ±SE        residual RMS counts"
+        );
+        for g in 0..16 {
+            for (c, name) in RAW_NAMES.iter().enumerate() {
+                let (l, q) = lin(g, c);
+                let f = &m.groups[g];
+                println!(
+                    "  {g:5} {name:10} {l:+12.4} {:8.4} {q:+14.6} {:10.6} {:14.2}",
+                    f.lin_se_counts_per_c[c], f.quad_se_counts_per_c2[c], f.residual_rms_counts[c]
+                );
+            }
+        }
+    } else {
+        println!(
+            "  channel     lin counts/°C: min … max over 16 groups  (largest SE)   quad counts/°C²: min … max  \
+             (largest SE)   residual RMS counts: max"
+        );
+        for (c, name) in RAW_NAMES.iter().enumerate() {
+            let range = |f: &dyn Fn(usize) -> f64| {
+                (0..16)
+                    .map(f)
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
+                        (l.min(x), h.max(x))
+                    })
+            };
+            let max = |f: &dyn Fn(usize) -> f64| (0..16).map(f).fold(0f64, f64::max);
+            let (l0, l1) = range(&|g| lin(g, c).0);
+            let (q0, q1) = range(&|g| lin(g, c).1);
+            println!(
+                "  {name:10} {l0:+9.4} … {l1:+9.4}  ({:.4})                {q0:+9.6} … {q1:+9.6}  ({:.6})      {:.2}",
+                max(&|g| m.groups[g].lin_se_counts_per_c[c]),
+                max(&|g| m.groups[g].quad_se_counts_per_c2[c]),
+                max(&|g| m.groups[g].residual_rms_counts[c])
+            );
+        }
+    }
 }
