@@ -219,137 +219,153 @@ pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_millihz: u64)
         _ => std::fs::read(path).with_context(|| format!("reading {}", path.display()))?,
     };
     match detect(path, &bytes)? {
-        InputKind::Csv => {
-            if cal.is_some() {
-                bail!(
-                    "{}: an interchange CSV holds calibrated values (°/s, g); a calibration applies only to raw \
-                     recordings (FPGA frame log, MIMU4444 stream)",
-                    path.display()
-                );
-            }
-            let (recording, warnings) =
-                Recording::read(path).with_context(|| path.display().to_string())?;
-            Ok(Loaded {
-                recording,
-                notes: Vec::new(),
-                warnings: warnings
-                    .into_iter()
-                    .map(|w| format!("{}: {w}", path.display()))
-                    .collect(),
-            })
-        }
-        InputKind::Npy => {
-            refuse_npy_calibration(path, cal)?;
-            let array = if bytes.is_empty() {
-                crate::formats::npy::NpyArray::open(path)?
-            } else {
-                crate::formats::npy::NpyArray::from_bytes(&bytes)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
-            };
-            let recording = array
-                .recording()
-                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-            Ok(Loaded {
-                recording,
-                notes: npy_notes(path, &array),
-                warnings: Vec::new(),
-            })
-        }
-        InputKind::Mimu => {
-            let m = crate::mimu::parse(&bytes)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-            let table = match cal {
-                Some(Calibration::Mimu(t)) => Some(t.as_ref()),
-                Some(Calibration::Board(_)) => {
-                    bail!(
-                        "{}: a 16-group calibration cannot apply to the 8-IMU MIMU4444 array",
-                        path.display()
-                    )
-                }
-                None => None,
-            };
-            let s = &m.stats;
-            let notes = vec![format!(
-                "MIMU4444 stream: {} frames, {:.1} s, {} bytes skipped, {} checksum failures, {} packets missing{}",
-                m.frames.len(),
-                m.duration_s(),
-                s.bytes_skipped,
-                s.checksum_failures,
-                s.packets_missing,
-                if table.is_none() {
-                    " (nominal scales, each IMU in its own frame)"
-                } else {
-                    " (calibrated, cluster frame)"
-                }
-            )];
-            let lost: Vec<String> = [
-                (s.bytes_skipped as u64, "bytes skipped"),
-                (s.checksum_failures as u64, "frames failed their checksum"),
-                (s.packets_missing, "packets missing by number"),
-            ]
-            .iter()
-            .filter(|(n, _)| *n > 0)
-            .map(|(n, what)| format!("{n} {what}"))
-            .collect();
-            let warnings = if lost.is_empty() {
-                Vec::new()
-            } else {
-                vec![format!(
-                    "{}: {}: those samples are not in the recording{}",
-                    path.display(),
-                    lost.join(", "),
-                    s.events
-                        .first()
-                        .map_or(String::new(), |e| format!(" (the first at {e})"))
-                )]
-            };
-            Ok(Loaded {
-                recording: mimu_recording(&m, table),
-                notes,
-                warnings,
-            })
-        }
-        InputKind::FrameLog => {
-            let board = match cal {
-                Some(Calibration::Board(t)) => Some(t.as_ref()),
-                Some(Calibration::Mimu(_)) => {
-                    bail!(
-                        "{}: an 8-IMU calibration cannot apply to our 16-group frames",
-                        path.display()
-                    )
-                }
-                None => None,
-            };
-            let log = FrameLog::decode(&bytes);
-            if log.frames.is_empty() {
-                bail!(
-                    "{}: no valid frame found in {} bytes ({} CRC errors)",
-                    path.display(),
-                    bytes.len(),
-                    log.counters.crc_errors
-                );
-            }
-            let factory = CalibrationTable::factory();
-            let recording = log.to_recording(board.unwrap_or(&factory), base_rate_millihz);
-            let c = log.counters;
-            let notes = vec![format!(
-                "frame log: {} frames, {} CRC errors, {} bytes skipped, {} frames missing by sequence{}",
-                c.frames,
-                c.crc_errors,
-                c.bytes_skipped,
-                c.frames_dropped,
-                if board.is_none() {
-                    " (factory calibration)"
-                } else {
-                    ""
-                }
-            )];
-            let warnings = link_warning(path, &c, "recording").into_iter().collect();
-            Ok(Loaded {
-                recording,
-                notes,
-                warnings,
-            })
-        }
+        InputKind::Csv => load_csv(path, cal),
+        InputKind::Npy => load_npy(path, &bytes, cal),
+        InputKind::Mimu => load_mimu(path, &bytes, cal),
+        InputKind::FrameLog => load_frame_log(path, &bytes, cal, base_rate_millihz),
     }
+}
+
+/// An interchange CSV (streamed from `path`; calibrated already, so `cal` must be `None`).
+fn load_csv(path: &Path, cal: Option<&Calibration>) -> Result<Loaded> {
+    if cal.is_some() {
+        bail!(
+            "{}: an interchange CSV holds calibrated values (°/s, g); a calibration applies only to raw \
+             recordings (FPGA frame log, MIMU4444 stream)",
+            path.display()
+        );
+    }
+    let (recording, warnings) =
+        Recording::read(path).with_context(|| path.display().to_string())?;
+    Ok(Loaded {
+        recording,
+        notes: Vec::new(),
+        warnings: warnings
+            .into_iter()
+            .map(|w| format!("{}: {w}", path.display()))
+            .collect(),
+    })
+}
+
+/// A NumPy array (`bytes` when already read, else mapped from `path`).
+fn load_npy(path: &Path, bytes: &[u8], cal: Option<&Calibration>) -> Result<Loaded> {
+    refuse_npy_calibration(path, cal)?;
+    let array = if bytes.is_empty() {
+        crate::formats::npy::NpyArray::open(path)?
+    } else {
+        crate::formats::npy::NpyArray::from_bytes(bytes)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+    };
+    let recording = array
+        .recording()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok(Loaded {
+        recording,
+        notes: npy_notes(path, &array),
+        warnings: Vec::new(),
+    })
+}
+
+/// A MIMU4444 stream, through `cal` (an 8-IMU table) or the nominal scales.
+fn load_mimu(path: &Path, bytes: &[u8], cal: Option<&Calibration>) -> Result<Loaded> {
+    let m = crate::mimu::parse(bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let table = match cal {
+        Some(Calibration::Mimu(t)) => Some(t.as_ref()),
+        Some(Calibration::Board(_)) => {
+            bail!(
+                "{}: a 16-group calibration cannot apply to the 8-IMU MIMU4444 array",
+                path.display()
+            )
+        }
+        None => None,
+    };
+    let s = &m.stats;
+    let notes = vec![format!(
+        "MIMU4444 stream: {} frames, {:.1} s, {} bytes skipped, {} checksum failures, {} packets missing{}",
+        m.frames.len(),
+        m.duration_s(),
+        s.bytes_skipped,
+        s.checksum_failures,
+        s.packets_missing,
+        if table.is_none() {
+            " (nominal scales, each IMU in its own frame)"
+        } else {
+            " (calibrated, cluster frame)"
+        }
+    )];
+    let lost: Vec<String> = [
+        (s.bytes_skipped as u64, "bytes skipped"),
+        (s.checksum_failures as u64, "frames failed their checksum"),
+        (s.packets_missing, "packets missing by number"),
+    ]
+    .iter()
+    .filter(|(n, _)| *n > 0)
+    .map(|(n, what)| format!("{n} {what}"))
+    .collect();
+    let warnings = if lost.is_empty() {
+        Vec::new()
+    } else {
+        vec![format!(
+            "{}: {}: those samples are not in the recording{}",
+            path.display(),
+            lost.join(", "),
+            s.events
+                .first()
+                .map_or(String::new(), |e| format!(" (the first at {e})"))
+        )]
+    };
+    Ok(Loaded {
+        recording: mimu_recording(&m, table),
+        notes,
+        warnings,
+    })
+}
+
+/// An FPGA frame log, through `cal` (a 16-group table) or the factory table.
+fn load_frame_log(
+    path: &Path,
+    bytes: &[u8],
+    cal: Option<&Calibration>,
+    base_rate_millihz: u64,
+) -> Result<Loaded> {
+    let board = match cal {
+        Some(Calibration::Board(t)) => Some(t.as_ref()),
+        Some(Calibration::Mimu(_)) => {
+            bail!(
+                "{}: an 8-IMU calibration cannot apply to our 16-group frames",
+                path.display()
+            )
+        }
+        None => None,
+    };
+    let log = FrameLog::decode(bytes);
+    if log.frames.is_empty() {
+        bail!(
+            "{}: no valid frame found in {} bytes ({} CRC errors)",
+            path.display(),
+            bytes.len(),
+            log.counters.crc_errors
+        );
+    }
+    let factory = CalibrationTable::factory();
+    let recording = log.to_recording(board.unwrap_or(&factory), base_rate_millihz);
+    let c = log.counters;
+    let notes = vec![format!(
+        "frame log: {} frames, {} CRC errors, {} bytes skipped, {} frames missing by sequence{}",
+        c.frames,
+        c.crc_errors,
+        c.bytes_skipped,
+        c.frames_dropped,
+        if board.is_none() {
+            " (factory calibration)"
+        } else {
+            ""
+        }
+    )];
+    let warnings = link_warning(path, &c, "recording").into_iter().collect();
+    Ok(Loaded {
+        recording,
+        notes,
+        warnings,
+    })
 }
