@@ -129,14 +129,12 @@ pub struct ThermalFit {
     pub skipped: usize,
 }
 
-/// Fits the thermal terms of every raw channel to `frames` (see the module docs); frames without a valid
-/// temperature are left out. Fails when no frame has a temperature, when the temperatures span less than
-/// `opts.min_span_c`, or on a bad option.
-pub fn fit_thermal(
+/// The frames with a valid temperature (index, °C), the temperature range and the reference temperature; checks
+/// the options, that there is a temperature and that it spans enough.
+fn temperatures(
     frames: &[Decoded],
     opts: &ThermalOptions,
-    source: &str,
-) -> Result<ThermalFit, CalibError> {
+) -> Result<(Vec<(usize, f64)>, [f64; 2], f64), CalibError> {
     if !(opts.min_span_c.is_finite() && opts.min_span_c > 0.0) {
         return Err(CalibError::InvalidOption(
             "thermal fit: min_span_c must be > 0",
@@ -147,8 +145,7 @@ pub fn fit_thermal(
         .enumerate()
         .filter_map(|(i, d)| d.frame.temp_cdeg.map(|t| (i, f64::from(t) / 100.0)))
         .collect();
-    let n = temps.len();
-    if n == 0 {
+    if temps.is_empty() {
         return Err(CalibError::NoTemperature {
             frames: frames.len(),
         });
@@ -168,8 +165,23 @@ pub fn fit_thermal(
     let t_ref_c = match opts.t_ref_c {
         Some(t) if t.is_finite() => t,
         Some(_) => return Err(CalibError::NonFinite("thermal fit: reference temperature")),
-        None => (temps.iter().map(|x| x.1).sum::<f64>() / n as f64 * 100.0).round() / 100.0,
+        None => {
+            (temps.iter().map(|x| x.1).sum::<f64>() / temps.len() as f64 * 100.0).round() / 100.0
+        }
     };
+    Ok((temps, [lo, hi], t_ref_c))
+}
+
+/// Fits the thermal terms of every raw channel to `frames` (see the module docs); frames without a valid
+/// temperature are left out. Fails when no frame has a temperature, when the temperatures span less than
+/// `opts.min_span_c`, or on a bad option.
+pub fn fit_thermal(
+    frames: &[Decoded],
+    opts: &ThermalOptions,
+    source: &str,
+) -> Result<ThermalFit, CalibError> {
+    let (temps, [lo, hi], t_ref_c) = temperatures(frames, opts)?;
+    let n = temps.len();
     let x = |t: f64| {
         let u = (t - t_ref_c) / UNIT_C;
         Vector3::new(1.0, u, u * u)
