@@ -68,14 +68,8 @@ fn rms_mg(m: &Matrix3<f64>, b: &Vector3<f64>, a: &[Vector3<f64>]) -> f64 {
     (s / a.len().max(1) as f64).sqrt() * 1e3
 }
 
-/// Re-estimates the biases of `cal` (one group per IMU, gyro channels `[x, y, z, ·]`) from static intervals of a
-/// new record; returns the updated calibration (matrices unchanged, a line added to the metadata's history) and
-/// what was done. Needs ≥ 1 pose.
-pub fn reestimate_biases(
-    cal: &CalibrationFile,
-    poses: &[StaticInterval],
-    opts: &BiasOptions,
-) -> Result<(CalibrationFile, BiasUpdate), CalibError> {
+/// Checks the poses against the calibration's `n` IMUs (counts, finite means) and the options.
+fn check_poses(n: usize, poses: &[StaticInterval], opts: &BiasOptions) -> Result<(), CalibError> {
     if poses.is_empty() {
         return Err(CalibError::TooFewPoses {
             needed: 1,
@@ -85,7 +79,6 @@ pub fn reestimate_biases(
     if !(opts.min_spread.is_finite() && opts.min_spread >= 0.0) {
         return Err(CalibError::InvalidOption("min_spread must be ≥ 0"));
     }
-    let n = cal.groups.len();
     for p in poses {
         for len in [p.accel_counts.len(), p.gyro_counts.len()] {
             if len != n {
@@ -106,6 +99,53 @@ pub fn reestimate_biases(
             return Err(CalibError::NonFinite("pose means"));
         }
     }
+    Ok(())
+}
+
+/// The accelerometer bias that makes every pose's specific force 1 g (Levenberg–Marquardt from `b_old`), matrix `m`
+/// kept; `a` the poses' mean counts.
+fn magnitude_fit(
+    m: &Matrix3<f64>,
+    b_old: &Vector3<f64>,
+    a: &[Vector3<f64>],
+    max_iterations: usize,
+) -> Result<Vector3<f64>, CalibError> {
+    let k = a.len();
+    let eval = |p: &DVector<f64>| {
+        let b = Vector3::new(p[0], p[1], p[2]);
+        let mut r = DVector::zeros(k);
+        let mut j = DMatrix::zeros(k, 3);
+        for (row, x) in a.iter().enumerate() {
+            let y = m * (x - b);
+            let nrm = y.norm().max(1e-300);
+            r[row] = nrm - 1.0;
+            let d = -(m.transpose() * (y / nrm));
+            for c in 0..3 {
+                j[(row, c)] = d[c];
+            }
+        }
+        (r, j)
+    };
+    let res = levenberg_marquardt(
+        DVector::from_column_slice(b_old.as_slice()),
+        eval,
+        |x, dx| x + dx,
+        max_iterations,
+    )
+    .ok_or(CalibError::NonFinite("bias fit"))?;
+    Ok(Vector3::new(res.x[0], res.x[1], res.x[2]))
+}
+
+/// Re-estimates the biases of `cal` (one group per IMU, gyro channels `[x, y, z, ·]`) from static intervals of a
+/// new record; returns the updated calibration (matrices unchanged, a line added to the metadata's history) and
+/// what was done. Needs ≥ 1 pose.
+pub fn reestimate_biases(
+    cal: &CalibrationFile,
+    poses: &[StaticInterval],
+    opts: &BiasOptions,
+) -> Result<(CalibrationFile, BiasUpdate), CalibError> {
+    check_poses(cal.groups.len(), poses, opts)?;
+    let n = cal.groups.len();
     let mut out = cal.clone();
     let mut up = BiasUpdate {
         method: Vec::with_capacity(n),
@@ -137,29 +177,7 @@ pub fn reestimate_biases(
             .map_or(0.0, |s| s.singular_values.min() / (k as f64).sqrt());
         let magnitude = k >= 3 && spread >= opts.min_spread;
         let b_new = if magnitude {
-            let eval = |p: &DVector<f64>| {
-                let b = Vector3::new(p[0], p[1], p[2]);
-                let mut r = DVector::zeros(k);
-                let mut j = DMatrix::zeros(k, 3);
-                for (row, x) in a.iter().enumerate() {
-                    let y = m * (x - b);
-                    let nrm = y.norm().max(1e-300);
-                    r[row] = nrm - 1.0;
-                    let d = -(m.transpose() * (y / nrm));
-                    for c in 0..3 {
-                        j[(row, c)] = d[c];
-                    }
-                }
-                (r, j)
-            };
-            let res = levenberg_marquardt(
-                DVector::from_column_slice(b_old.as_slice()),
-                eval,
-                |x, dx| x + dx,
-                opts.max_iterations,
-            )
-            .ok_or(CalibError::NonFinite("bias fit"))?;
-            Vector3::new(res.x[0], res.x[1], res.x[2])
+            magnitude_fit(&m, &b_old, &a, opts.max_iterations)?
         } else {
             a.iter()
                 .zip(&dirs)

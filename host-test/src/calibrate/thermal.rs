@@ -129,12 +129,15 @@ pub struct ThermalFit {
     pub skipped: usize,
 }
 
-/// The frames with a valid temperature (index, °C), the temperature range and the reference temperature; checks
+/// A frame with a valid temperature: its index and the temperature, °C.
+type Sample = (usize, f64);
+
+/// The frames with a valid temperature, the temperature range and the reference temperature; checks
 /// the options, that there is a temperature and that it spans enough.
 fn temperatures(
     frames: &[Decoded],
     opts: &ThermalOptions,
-) -> Result<(Vec<(usize, f64)>, [f64; 2], f64), CalibError> {
+) -> Result<(Vec<Sample>, [f64; 2], f64), CalibError> {
     if !(opts.min_span_c.is_finite() && opts.min_span_c > 0.0) {
         return Err(CalibError::InvalidOption(
             "thermal fit: min_span_c must be > 0",
