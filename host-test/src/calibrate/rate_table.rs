@@ -241,29 +241,21 @@ fn accel_inverse(theta: &DVector<f64>) -> Option<(Matrix3<f64>, Vec3)> {
     Some((s.try_inverse()?, core::array::from_fn(|c| theta[4 * c + 3])))
 }
 
-/// Fits one group (see the module docs). Needs records that excite every axis of both sensors (the standard
-/// design does) and finite values.
-pub fn fit_rate_table_group(
+/// One sensor's forward fits: the parameters (4 per raw channel), their covariance and each channel's residual RMS,
+/// counts.
+struct ForwardFit<const C: usize> {
+    theta: DVector<f64>,
+    cov: DMatrix<f64>,
+    rms: [f64; C],
+}
+
+/// Forward fits of one group's gyro channels: per raw channel `code = S·ω + b` by least squares; returns the 16
+/// parameters (4 per channel), their covariance, the residual RMS per channel and the channel weights of the
+/// inversion (inverse bias variances with `opts.weight_channels`).
+fn gyro_forward(
     records: &[RateRecord],
     opts: &RateTableOptions,
-) -> Result<RateTableFit, CalibError> {
-    if records.iter().any(|r| {
-        !r.rate_dps
-            .iter()
-            .chain(&r.accel_g)
-            .chain(&r.gyro_counts)
-            .chain(&r.accel_counts)
-            .all(|x| x.is_finite())
-    }) {
-        return Err(CalibError::NonFinite("rate-table records"));
-    }
-    if records.len() < 5 {
-        return Err(CalibError::TooFewPoses {
-            needed: 5,
-            found: records.len(),
-        });
-    }
-    // Gyro forward fits.
+) -> Result<(ForwardFit<4>, [f64; 4]), CalibError> {
     let xg = DMatrix::from_fn(records.len(), 4, |r, c| {
         if c < 3 { records[r].rate_dps[c] } else { 1.0 }
     });
@@ -284,10 +276,23 @@ pub fn fit_rate_table_group(
     } else {
         [1.0; 4]
     };
-    let (mg, bg) = gyro_inverse(&theta_g, &w).ok_or(CalibError::Degenerate(
-        "gyro channels do not sense three independent axes",
-    ))?;
-    // Accelerometer forward fits.
+    Ok((
+        ForwardFit {
+            theta: theta_g,
+            cov: cov_g,
+            rms: gyro_residual_rms_counts,
+        },
+        w,
+    ))
+}
+
+/// Forward fits of one group's accelerometer channels, on the records `opts.accel_records` selects (with one
+/// nuisance offset per rotating pose under `CentripetalOffsets`); returns the 12 parameters, their covariance and
+/// the residual RMS per channel.
+fn accel_forward(
+    records: &[RateRecord],
+    opts: &RateTableOptions,
+) -> Result<ForwardFit<3>, CalibError> {
     let rotating = |r: &RateRecord| r.rate_dps.iter().any(|&v| v != 0.0);
     let acc_records: Vec<&RateRecord> = records
         .iter()
@@ -328,6 +333,51 @@ pub fn fit_rate_table_group(
         *rms_out = rms;
     }
     let cov_a = block_diag(&cov_a);
+    Ok(ForwardFit {
+        theta: theta_a,
+        cov: cov_a,
+        rms: accel_residual_rms_counts,
+    })
+}
+
+/// Fits one group (see the module docs). Needs records that excite every axis of both sensors (the standard
+/// design does) and finite values.
+pub fn fit_rate_table_group(
+    records: &[RateRecord],
+    opts: &RateTableOptions,
+) -> Result<RateTableFit, CalibError> {
+    if records.iter().any(|r| {
+        !r.rate_dps
+            .iter()
+            .chain(&r.accel_g)
+            .chain(&r.gyro_counts)
+            .chain(&r.accel_counts)
+            .all(|x| x.is_finite())
+    }) {
+        return Err(CalibError::NonFinite("rate-table records"));
+    }
+    if records.len() < 5 {
+        return Err(CalibError::TooFewPoses {
+            needed: 5,
+            found: records.len(),
+        });
+    }
+    let (
+        ForwardFit {
+            theta: theta_g,
+            cov: cov_g,
+            rms: gyro_residual_rms_counts,
+        },
+        w,
+    ) = gyro_forward(records, opts)?;
+    let (mg, bg) = gyro_inverse(&theta_g, &w).ok_or(CalibError::Degenerate(
+        "gyro channels do not sense three independent axes",
+    ))?;
+    let ForwardFit {
+        theta: theta_a,
+        cov: cov_a,
+        rms: accel_residual_rms_counts,
+    } = accel_forward(records, opts)?;
     let (ma, ba) = accel_inverse(&theta_a).ok_or(CalibError::Degenerate(
         "accelerometer channels do not sense three independent axes",
     ))?;
