@@ -26,6 +26,14 @@ impl DevKind {
         }
     }
 
+    /// The kind of a lower-case name (`"adev"`, `"oadev"`, `"mdev"`), as [`Self::name`] gives it.
+    pub fn from_name(name: &str) -> Result<DevKind, super::ParseError> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == name)
+            .ok_or_else(|| super::ParseError::Kind(name.to_owned()))
+    }
+
     /// Number of terms in the estimator sum, exactly as Stable32 prints it in its `#`
     /// column and allantools returns as `n`, for `n_samples` frequency samples
     /// (`n_samples + 1` phase points) at averaging factor `m`:

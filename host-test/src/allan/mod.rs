@@ -53,3 +53,14 @@ pub use noise::{
     b1_noise_id, noise_id,
 };
 pub use taus::{TauSpec, averaging_factors};
+
+/// A deviation kind or τ list named wrongly.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ParseError {
+    /// Not `adev`, `oadev` or `mdev`.
+    #[error("expected adev, oadev or mdev, found '{0}'")]
+    Kind(String),
+    /// Not `octave`, `decade`, `all` or a positive number.
+    #[error("expected octave, decade, all or a number of points per decade, found '{0}'")]
+    Taus(String),
+}

@@ -18,6 +18,24 @@ pub enum TauSpec {
     Factors(Vec<usize>),
 }
 
+impl TauSpec {
+    /// The spec a user names: `octave`, `decade`, `all`, or a positive number of points per decade (`ground allan
+    /// --taus`, the Python package's `taus`).
+    pub fn parse(s: &str) -> Result<TauSpec, super::ParseError> {
+        Ok(match s {
+            "octave" => TauSpec::Octave,
+            "decade" => TauSpec::Decade,
+            "all" => TauSpec::All,
+            n => TauSpec::PerDecade(
+                n.parse()
+                    .ok()
+                    .filter(|&n: &u32| n > 0)
+                    .ok_or_else(|| super::ParseError::Taus(n.to_owned()))?,
+            ),
+        })
+    }
+}
+
 /// The averaging factors for `spec`, for a deviation of `kind` on `n_samples` frequency
 /// samples, sorted ascending without duplicates.
 ///

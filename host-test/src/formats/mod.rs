@@ -4,6 +4,7 @@
 
 pub mod csv;
 pub mod framelog;
+pub mod mcap;
 pub mod npy;
 pub mod telemetry;
 

@@ -6,6 +6,8 @@ use shared::bus::kiss::KissDecoder;
 use shared::bus::{BusConfig, MAX_FRAME};
 use shared::telemetry::{AllanReport, FusedReport, Telemetry, decode};
 
+pub mod tables;
+
 /// Counts of what could not be decoded.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct StreamStats {
@@ -76,6 +78,33 @@ impl AllanPoint {
     }
 }
 
+/// A telemetry stream could not be read, or held no telemetry message.
+#[derive(Debug, thiserror::Error)]
+pub enum TelemetryError {
+    /// The file could not be read.
+    #[error("reading {path}: {source}")]
+    Io {
+        /// File.
+        path: String,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// Not one message decoded.
+    #[error(
+        "{path}: no telemetry message in {bytes} bytes ({} KISS frames: {} bad KISS, {} bad CSP, {} bad messages, {} \
+         for other ports)",
+        .stats.frames, .stats.kiss_errors, .stats.csp_errors, .stats.bad_messages, .stats.other_port
+    )]
+    Empty {
+        /// File.
+        path: String,
+        /// Its size.
+        bytes: usize,
+        /// What could not be decoded.
+        stats: StreamStats,
+    },
+}
+
 /// A decoded telemetry stream.
 #[derive(Clone, Debug, Default)]
 pub struct TelemetryLog {
@@ -112,6 +141,26 @@ impl TelemetryLog {
             }
         }
         log
+    }
+
+    /// Reads and decodes the telemetry stream in `path` ([`Self::decode`]); a stream without any message is an error.
+    pub fn read(
+        path: &std::path::Path,
+        config: &BusConfig,
+    ) -> Result<TelemetryLog, TelemetryError> {
+        let bytes = std::fs::read(path).map_err(|source| TelemetryError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        let log = Self::decode(&bytes, config);
+        if log.messages.is_empty() {
+            return Err(TelemetryError::Empty {
+                path: path.display().to_string(),
+                bytes: bytes.len(),
+                stats: log.stats,
+            });
+        }
+        Ok(log)
     }
 
     /// The fused reports, in order.

@@ -54,19 +54,6 @@ pub struct Args {
     calib: Option<PathBuf>,
 }
 
-fn parse_taus(s: &str) -> Result<TauSpec> {
-    Ok(match s {
-        "octave" => TauSpec::Octave,
-        "decade" => TauSpec::Decade,
-        "all" => TauSpec::All,
-        n => TauSpec::PerDecade(n.parse().ok().filter(|&n: &u32| n > 0).with_context(|| {
-            format!(
-                "--taus: expected octave, decade, all or a number of points per decade, found '{n}'"
-            )
-        })?),
-    })
-}
-
 pub fn run(a: Args) -> Result<()> {
     let t0 = std::time::Instant::now();
     let cal = any_calib(&a.calib)?;
@@ -100,7 +87,7 @@ pub fn run(a: Args) -> Result<()> {
     };
     let req = AdevRequest {
         kind,
-        taus: parse_taus(&a.taus)?,
+        taus: TauSpec::parse(&a.taus).context("--taus")?,
         columns: if a.all { vec![] } else { a.columns.clone() },
         cluster: true,
     };

@@ -39,7 +39,7 @@ enum Cmd {
     Calibrate(calibrate::Args),
     /// Run a frame log through the flight core (shared::Pipeline) and write the telemetry stream it would send.
     Replay(replay::Args),
-    /// Decode a telemetry stream (CSP/KISS/postcard) to CSV or JSON lines.
+    /// Decode a telemetry stream (CSP/KISS/postcard) to CSV, JSON lines or MCAP (Foxglove).
     Decode(decode::Args),
     /// Allan deviations with confidence intervals, noise identification, noise-term fit, plots, Kalibr yaml.
     Allan(allan::Args),
