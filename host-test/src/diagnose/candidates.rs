@@ -19,6 +19,7 @@ impl Candidate {
     pub(super) fn nature(&self) -> Option<Terms> {
         self.cross.iter().find_map(|c| match c {
             Cross::Shared { share, .. } => Some(share.part),
+            Cross::Own { part, .. } => Some(*part),
             Cross::Thermal { .. } => None,
         })
     }
@@ -220,7 +221,16 @@ pub(super) fn candidates(
     if partial {
         cands.extend(block_candidate(an, w, first, hf, tau0, &cl));
     }
-    cands.extend(shared_candidates(an, w, first, hf, tau0, temp, partial));
+    // One sensor's departure at long τ is its own (`sensor_drift`), and is kept out of the shared fits: a shared
+    // process shows in the cross covariances, one sensor's does not.
+    let deps = departures(an, first, hf, tau0, opts);
+    cands.extend(drift_candidate(w, &deps));
+    let members: Vec<usize> = (0..ns)
+        .filter(|i| !deps.iter().any(|d| d.sensor == *i))
+        .collect();
+    cands.extend(shared_candidates(
+        an, w, first, hf, tau0, temp, partial, &members,
+    ));
     if let Some(t) = temp {
         cands.push(thermal_candidate(w, first, t, tau0));
     }
@@ -356,6 +366,7 @@ fn block_candidate(
 /// half's noise, decides between them: fast (quantisation + white), flicker, or both (`common_mode`), and slow
 /// (random walk + ramp, `common_mode_drift`). (A flicker + slow shape, tried, took shared flicker for a drift.)
 /// With blocks found (`partial`), only the slow shape is offered.
+#[allow(clippy::too_many_arguments)] // the first half's data and statistics, each used; no natural bundle
 fn shared_candidates(
     an: &mut Analyzer,
     w: &AxisWork,
@@ -364,10 +375,9 @@ fn shared_candidates(
     tau0: f64,
     temp: Option<&[f64]>,
     partial: bool,
+    all: &[usize],
 ) -> Vec<Candidate> {
-    let ns = first.len();
-    let all: Vec<usize> = (0..ns).collect();
-    let Some((rows, e)) = shared_fit(an, first, hf, &all, tau0) else {
+    let Some((rows, e)) = shared_fit(an, first, hf, all, tau0) else {
         return Vec::new();
     };
     let mut cands = Vec::new();
@@ -416,13 +426,13 @@ fn shared_candidates(
             },
             level: None,
             cross: vec![Cross::Shared {
-                members: all.clone(),
+                members: all.to_vec(),
                 share: Share {
                     part,
                     independent: e,
                 },
             }],
-            groups: Groups::List(w.groups.clone()),
+            groups: Groups::List(all.iter().map(|&i| w.groups[i]).collect()),
             params,
         });
     }

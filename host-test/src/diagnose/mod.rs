@@ -31,7 +31,9 @@ pub use prediction::{scan_statistic, scan_threshold};
 pub(crate) use singles::median_to_mean;
 pub mod report;
 mod selection;
+mod sensors;
 mod singles;
+pub mod steps;
 mod summary;
 
 use crate::allan::edf_for_kind;
@@ -47,6 +49,7 @@ use std::collections::BTreeMap;
 use candidates::*;
 use prediction::*;
 use selection::*;
+use sensors::*;
 use singles::*;
 use summary::*;
 
@@ -146,7 +149,8 @@ impl std::fmt::Display for Groups {
 /// One identified effect.
 #[derive(Clone, Debug, Serialize)]
 pub struct Effect {
-    /// `common_mode`, `block_common_mode`, `common_mode_drift`, `thermal`, `outlier_sensor`, `unequal_noise`.
+    /// `common_mode`, `block_common_mode`, `common_mode_drift`, `thermal`, `outlier_sensor`, `unequal_noise`,
+    /// `sensor_drift` (one sensor's own slow drift), `bias_step` (one sensor's bias jump).
     pub kind: String,
     /// `gyro` or `accel`.
     pub sensor: String,
@@ -387,10 +391,42 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
             "{n} samples: too short for a diagnosis (at least {MIN_SAMPLES}; hours are better)"
         ));
     }
-    let works = axis_works(rec);
-    if works.is_empty() {
+    let raw = axis_works(rec);
+    if raw.is_empty() {
         return Err("no axis has at least two sensors".into());
     }
+    // One sensor's bias step, found against its neighbours and removed before anything else is measured.
+    let found: Vec<Vec<steps::Step>> = raw
+        .iter()
+        .map(|w| steps::find(&w.series, opts.p_false))
+        .collect();
+    let fixed: Vec<Vec<Option<Vec<f64>>>> = raw
+        .iter()
+        .zip(&found)
+        .map(|(w, st)| {
+            (0..w.series.len())
+                .map(|i| {
+                    st.iter()
+                        .find(|s| s.sensor == i)
+                        .map(|s| steps::remove(w.series[i], s))
+                })
+                .collect()
+        })
+        .collect();
+    let works: Vec<AxisWork> = raw
+        .iter()
+        .zip(&fixed)
+        .map(|(w, f)| AxisWork {
+            series: w
+                .series
+                .iter()
+                .zip(f)
+                .map(|(s, c)| c.as_deref().unwrap_or(s))
+                .collect(),
+            groups: w.groups.clone(),
+            ..*w
+        })
+        .collect();
     let temp = rec
         .temp_c
         .as_deref()
@@ -423,7 +459,10 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
             rms_before: rms(gaps.raw_before),
             rms_after: rms(gaps.raw_after),
         },
-        effects: merge_effects(effects),
+        effects: merge_effects(effects)
+            .into_iter()
+            .chain(step_effects(&works, &found, tau0))
+            .collect(),
         axes,
         samples: n,
         tau0_s: tau0,
@@ -545,7 +584,17 @@ fn analyse_axis(
     );
     let hw = Half::measure(an, &w.series, &wts, tau0, mb, &typ_terms, &pts_whole, temp);
     let thr = threshold(thresholds, hw.len(), opts.p_false);
-    let chosen = select(&cands, &hw, &hh, &wts, opts, thr, None);
+    let mut chosen = select(&cands, &hw, &hh, &wts, opts, thr, None);
+    // A sensor's own drift is named on per-sensor evidence, confirmed on the held-out half.
+    if let Some(c) = cands.iter().position(|c| c.kind == "sensor_drift")
+        && !chosen.contains(&c)
+        && cands[c].cross.iter().any(|x| match x {
+            Cross::Own { sensor, .. } => confirmed(&hh, *sensor, opts),
+            _ => false,
+        })
+    {
+        chosen.push(c);
+    }
     AxisState {
         hf,
         hw,
@@ -757,6 +806,52 @@ fn report_axis(
         model_misfit: st.model_misfit,
         effects,
     });
+}
+
+/// The `bias_step` effects, one per sensor and axis: time and size of the step, its score and threshold.
+fn step_effects(works: &[AxisWork], found: &[Vec<steps::Step>], tau0: f64) -> Vec<Effect> {
+    let mut out = Vec::new();
+    for (w, st) in works.iter().zip(found) {
+        for s in st {
+            let ax = AXIS_NAMES.get(w.axis).copied().unwrap_or('?').to_string();
+            let window = s.window as f64 * tau0;
+            let n = w.series[s.sensor].len();
+            let mut params = BTreeMap::new();
+            params.insert(
+                ax.clone(),
+                serde_json::json!({
+                    "at_s": s.at as f64 * tau0,
+                    "at_fraction": s.at as f64 / n as f64,
+                    "size": s.size,
+                    "z": s.z,
+                    "threshold_z": s.threshold,
+                    "window_s": window,
+                }),
+            );
+            out.push(Effect {
+                kind: "bias_step".into(),
+                sensor: w.kind.name().into(),
+                axes: ax,
+                groups: Groups::List(vec![w.groups[s.sensor]]),
+                region: "step".into(),
+                tau_s: [window, window],
+                tau_at_max_s: window,
+                share: step_share(s, n),
+                params,
+            });
+        }
+    }
+    out
+}
+
+/// The step's share of its own sensor's overlapping Allan variance at the detection window τ = mτ₀, from the
+/// closed form of a step Δ in n samples, `Δ²·m/(3(n − 2m))` (the 2m straddling differences, triangular), against
+/// the noise that made its score: `Δ²/z²` is `2σ²_A`.
+fn step_share(s: &steps::Step, n: usize) -> f64 {
+    let m = s.window as f64;
+    let step = s.size.powi(2) * m / (3.0 * (n as f64 - 2.0 * m).max(1.0));
+    let noise = 0.5 * s.size.powi(2) / s.z.powi(2).max(1e-300);
+    step / (step + noise)
 }
 
 /// Region, τ range, τ of max and max share of an effect (see [`acts`]).
