@@ -262,6 +262,10 @@ pub struct EffectArgs {
     /// Shared slow drift (random walk of the bias) of all groups: AXES:K (K in (°/s)/√s or g/√s).
     #[arg(long)]
     pub drift: Vec<String>,
+    /// One sensor's own slow drift (random walk of its bias), not shared: GROUP/AXES:K (K in (°/s)/√s or g/√s),
+    /// e.g. 7/ay:2e-6. (A bias step on one sensor: `--outlier GROUP:CHANNEL:1:STEP:STEP_AT_S`.)
+    #[arg(long = "sensor-drift")]
+    pub sensor_drift: Vec<String>,
     /// Temperature-driven bias of each raw channel: AXES:COEF[:SD], COEF in (°/s)/°C or g/°C, SD the spread between
     /// parts (repeatable: gyro and accel together); zero at 20 °C; board temperature from --temperature, else
     /// 20 °C ± 2 °C over 2 h plus 1 °C/h.
@@ -288,6 +292,7 @@ impl EffectArgs {
         !(self.common_mode.is_empty()
             && self.block.is_empty()
             && self.drift.is_empty()
+            && self.sensor_drift.is_empty()
             && self.thermal.is_empty()
             && self.temperature.is_none()
             && self.outlier.is_empty()
@@ -329,6 +334,22 @@ impl EffectArgs {
             let k = nums(rest, "--drift", 1..=1)?[0];
             cfg.drift.push(CommonDrift {
                 groups: None,
+                axes: parse_axes(axes)?,
+                kind: DriftKind::RandomWalk { k },
+            });
+        }
+        for s in &self.sensor_drift {
+            let (group, rest) = s.split_once('/').context("--sensor-drift GROUP/AXES:K")?;
+            let (axes, rest) = rest
+                .split_once(':')
+                .context("--sensor-drift GROUP/AXES:K")?;
+            let k = nums(rest, "--sensor-drift", 1..=1)?[0];
+            cfg.drift.push(CommonDrift {
+                groups: Some(vec![
+                    group
+                        .parse()
+                        .with_context(|| format!("--sensor-drift group '{group}'"))?,
+                ]),
                 axes: parse_axes(axes)?,
                 kind: DriftKind::RandomWalk { k },
             });

@@ -19,6 +19,7 @@ impl Candidate {
     pub(super) fn nature(&self) -> Option<Terms> {
         self.cross.iter().find_map(|c| match c {
             Cross::Shared { share, .. } => Some(share.part),
+            Cross::Own { part, .. } => Some(*part),
             Cross::Thermal { .. } => None,
         })
     }
@@ -201,7 +202,7 @@ pub(super) fn thermal_betas(series: &[&[f64]], temp: &[f64], block: usize) -> Ve
         .collect()
 }
 
-/// The candidates of one axis, all fitted on the first half.
+/// The candidates of one axis, all fitted on the first half: levels, blocks, a process shared by all, thermal.
 #[allow(clippy::too_many_arguments)] // the first half's data, statistics and model, each used; no natural bundle
 pub(super) fn candidates(
     an: &mut Analyzer,
@@ -214,8 +215,31 @@ pub(super) fn candidates(
     opts: &Options,
 ) -> Vec<Candidate> {
     let ns = first.len();
-    let mut cands = Vec::new();
-    // Heterogeneity: each sensor's level relative to the typical one (median over τ of the deviation ratio).
+    let mut cands: Vec<Candidate> = level_candidate(w, hf, ns).into_iter().collect();
+    let cl = correlation_blocks(first, tau0, typ, opts.merge_z);
+    let partial = !cl.is_empty() && cl.iter().all(|c| c.len() <= ns - 2);
+    if partial {
+        cands.extend(block_candidate(an, w, first, hf, tau0, &cl));
+    }
+    // One sensor's departure at long τ is its own (`sensor_drift`), and is kept out of the shared fits: a shared
+    // process shows in the cross covariances, one sensor's does not.
+    let deps = departures(an, first, hf, tau0, opts);
+    cands.extend(drift_candidate(w, &deps));
+    let members: Vec<usize> = (0..ns)
+        .filter(|i| !deps.iter().any(|d| d.sensor == *i))
+        .collect();
+    cands.extend(shared_candidates(
+        an, w, first, hf, tau0, temp, partial, &members,
+    ));
+    if let Some(t) = temp {
+        cands.push(thermal_candidate(w, first, t, tau0));
+    }
+    cands
+}
+
+/// Heterogeneity: each sensor's level relative to the typical one (median over τ of the deviation ratio), as
+/// `outlier_sensor` or `unequal_noise`.
+fn level_candidate(w: &AxisWork, hf: &Half, ns: usize) -> Option<Candidate> {
     let ratio: Vec<f64> = (0..ns)
         .map(|i| {
             let l: Vec<f64> = (0..hf.len())
@@ -224,196 +248,217 @@ pub(super) fn candidates(
             median(&l).exp()
         })
         .collect();
-    if ratio.iter().all(|r| r.is_finite() && *r > 0.0) {
-        let outliers: Vec<usize> = (0..ns).filter(|&i| ratio[i] >= 2.0).collect();
-        let rest: Vec<f64> = (0..ns)
-            .filter(|i| !outliers.contains(i))
-            .map(|i| ratio[i].ln())
-            .collect();
-        let rest_mean = rest.iter().sum::<f64>() / rest.len().max(1) as f64;
-        let ln_spread = (rest.iter().map(|x| (x - rest_mean).powi(2)).sum::<f64>()
-            / (rest.len().max(2) - 1) as f64)
-            .sqrt();
-        // A few sensors (at most one in sixteen) far above an otherwise homogeneous rest — by a factor 2 and by four
-        // times the rest's log-spread — are outliers; a broad spread of levels is unequal noise.
-        let few = !outliers.is_empty()
-            && outliers.len() <= (ns / 16).max(1)
-            && ln_spread < UNEQUAL_LN_SPREAD
-            && outliers.iter().all(|&i| {
-                ratio[i].ln() - rest_mean > (4.0 * ln_spread).max(std::f64::consts::LN_2)
-            });
-        let (kind, groups) = if few {
-            (
-                "outlier_sensor",
-                outliers.iter().map(|&i| w.groups[i]).collect(),
-            )
-        } else {
-            ("unequal_noise", w.groups.clone())
-        };
-        cands.push(Candidate {
-            kind,
-            level: Some(ratio.iter().map(|r| r * r).collect()),
-            cross: Vec::new(),
-            groups: Groups::List(groups),
-            params: serde_json::json!({
-                "deviation_ratio_to_typical": (0..ns).map(|i| (w.groups[i].to_string(), ratio[i])).collect::<BTreeMap<_, _>>(),
-                "ln_spread": ln_spread,
-            }),
-        });
+    if !ratio.iter().all(|r| r.is_finite() && *r > 0.0) {
+        return None;
     }
-
-    // Blocks: clusters of the Allan correlation matrix that are not the whole cluster.
-    // With equal weights a set of blocks and one cluster-wide process of the same total cross covariance predict
-    // the same cluster variance, so the held-out gap cannot tell them apart: the structure decides which is offered.
-    // Two bands: every level weighted by its differences (the white region dominates), then, if no sensors
-    // cluster there, the flicker and random-walk levels weighted equally (a block sharing only a slow process).
-    let cl: Vec<Vec<usize>> = if ns >= 4 {
-        let ac = AllanCov::compute(first, tau0, 30);
-        let all: Vec<(usize, f64)> = (0..ac.tau_s.len())
-            .filter(|&l| ac.terms[l] >= 30)
-            .map(|l| (l, ac.terms[l] as f64))
-            .collect();
-        let slow: Vec<(usize, f64)> = all
+    let outliers: Vec<usize> = (0..ns).filter(|&i| ratio[i] >= 2.0).collect();
+    let rest: Vec<f64> = (0..ns)
+        .filter(|i| !outliers.contains(i))
+        .map(|i| ratio[i].ln())
+        .collect();
+    let rest_mean = rest.iter().sum::<f64>() / rest.len().max(1) as f64;
+    let ln_spread = (rest.iter().map(|x| (x - rest_mean).powi(2)).sum::<f64>()
+        / (rest.len().max(2) - 1) as f64)
+        .sqrt();
+    // A few sensors (at most one in sixteen) far above an otherwise homogeneous rest — by a factor 2 and by four
+    // times the rest's log-spread — are outliers; a broad spread of levels is unequal noise.
+    let few = !outliers.is_empty()
+        && outliers.len() <= (ns / 16).max(1)
+        && ln_spread < UNEQUAL_LN_SPREAD
+        && outliers
             .iter()
-            .filter(|&&(l, _)| matches!(region_name(typ, ac.tau_s[l]), "flicker" | "random_walk"))
-            .map(|&(l, _)| (l, 1.0))
-            .collect();
-        let found = |levels: &[(usize, f64)]| -> Vec<Vec<usize>> {
-            blocks(&ac, levels, opts.merge_z)
-                .into_iter()
-                .filter(|c| c.len() >= 2)
-                .collect()
-        };
-        let fast = found(&all);
-        if fast.is_empty() && !slow.is_empty() {
-            found(&slow)
-        } else {
-            fast
-        }
+            .all(|&i| ratio[i].ln() - rest_mean > (4.0 * ln_spread).max(std::f64::consts::LN_2));
+    let (kind, groups) = if few {
+        (
+            "outlier_sensor",
+            outliers.iter().map(|&i| w.groups[i]).collect(),
+        )
     } else {
-        Vec::new()
+        ("unequal_noise", w.groups.clone())
     };
-    let partial = !cl.is_empty() && cl.iter().all(|c| c.len() <= ns - 2);
-    {
-        if partial {
-            let mut cross = Vec::new();
-            let mut per_block = Vec::new();
-            for c in &cl {
-                if let Some((rows, e)) = shared_fit(an, first, hf, c, tau0)
-                    && let Some(s) = fit_subset(&rows, &[0, 1, 2, 3, 4])
-                {
-                    cross.push(Cross::Shared {
-                        members: c.clone(),
-                        share: Share {
-                            part: s,
-                            independent: e,
-                        },
-                    });
-                    per_block.push(serde_json::json!({
-                        "groups": c.iter().map(|&i| w.groups[i]).collect::<Vec<_>>(),
-                        "shared": s.physical(),
-                    }));
-                }
-            }
-            if cross.len() == cl.len() {
-                cands.push(Candidate {
-                    kind: "block_common_mode",
-                    level: None,
-                    cross,
-                    groups: Groups::Blocks(
-                        cl.iter()
-                            .map(|c| c.iter().map(|&i| w.groups[i]).collect())
-                            .collect(),
-                    ),
-                    params: serde_json::json!({ "blocks": per_block }),
-                });
-            }
-        }
-    }
+    Some(Candidate {
+        kind,
+        level: Some(ratio.iter().map(|r| r * r).collect()),
+        cross: Vec::new(),
+        groups: Groups::List(groups),
+        params: serde_json::json!({
+            "deviation_ratio_to_typical": (0..ns).map(|i| (w.groups[i].to_string(), ratio[i])).collect::<BTreeMap<_, _>>(),
+            "ln_spread": ln_spread,
+        }),
+    })
+}
 
-    // A process shared by all sensors, fitted in each shape on its own so that the held-out check, not the first
-    // half's noise, decides between them: fast (quantisation + white), flicker, or both (`common_mode`), and slow
-    // (random walk + ramp, `common_mode_drift`). (A flicker + slow shape, tried, took shared flicker for a drift.)
-    let all: Vec<usize> = (0..ns).collect();
-    if let Some((rows, e)) = shared_fit(an, first, hf, &all, tau0) {
-        let subsets: [&[usize]; 4] = [&[0, 1], &[2], &[0, 1, 2], &[3, 4]];
-        for subset in subsets {
-            let Some(part) = fit_subset(&rows, subset) else {
-                continue;
-            };
-            let slow = subset.contains(&3);
-            if partial && !slow {
-                continue;
-            }
-            let white = |t: &Terms| t.0[0] / tau0 + t.0[1];
-            let tot = Terms(std::array::from_fn(|k| part.0[k] + e.0[k]));
-            let rho_white = if white(&tot) > 0.0 {
-                white(&part) / white(&tot)
-            } else {
-                0.0
-            };
-            let rho_flicker = if tot.0[2] > 0.0 {
-                part.0[2] / tot.0[2]
-            } else {
-                0.0
-            };
-            let mut params = serde_json::json!({
-                "rho_white": rho_white,
-                "rho_flicker": rho_flicker,
-                "shared_random_walk": (3.0 * part.0[3]).sqrt(),
-                "shared_ramp": (2.0 * part.0[4]).sqrt(),
-                "shared": part.physical(),
-            });
-            if slow
-                && temp.is_none()
-                && let Some(o) = params.as_object_mut()
-            {
-                o.insert(
-                    "temperature".into(),
-                    "not recorded: a thermal cause cannot be separated from other shared drifts"
-                        .into(),
-                );
-            }
-            cands.push(Candidate {
-                kind: if slow {
-                    "common_mode_drift"
-                } else {
-                    "common_mode"
+/// Blocks: clusters of the Allan correlation matrix (of two sensors or more; empty below four sensors).
+/// With equal weights a set of blocks and one cluster-wide process of the same total cross covariance predict the
+/// same cluster variance, so the held-out gap cannot tell them apart: the structure decides which is offered.
+/// Two bands: every level weighted by its differences (the white region dominates), then, if no sensors cluster
+/// there, the flicker and random-walk levels weighted equally (a block sharing only a slow process).
+fn correlation_blocks(first: &[&[f64]], tau0: f64, typ: &Terms, merge_z: f64) -> Vec<Vec<usize>> {
+    if first.len() < 4 {
+        return Vec::new();
+    }
+    let ac = AllanCov::compute(first, tau0, 30);
+    let all: Vec<(usize, f64)> = (0..ac.tau_s.len())
+        .filter(|&l| ac.terms[l] >= 30)
+        .map(|l| (l, ac.terms[l] as f64))
+        .collect();
+    let slow: Vec<(usize, f64)> = all
+        .iter()
+        .filter(|&&(l, _)| matches!(region_name(typ, ac.tau_s[l]), "flicker" | "random_walk"))
+        .map(|&(l, _)| (l, 1.0))
+        .collect();
+    let found = |levels: &[(usize, f64)]| -> Vec<Vec<usize>> {
+        blocks(&ac, levels, merge_z)
+            .into_iter()
+            .filter(|c| c.len() >= 2)
+            .collect()
+    };
+    let fast = found(&all);
+    if fast.is_empty() && !slow.is_empty() {
+        found(&slow)
+    } else {
+        fast
+    }
+}
+
+/// `block_common_mode`: one shared process (five terms) per block, if every block's fit succeeds.
+fn block_candidate(
+    an: &mut Analyzer,
+    w: &AxisWork,
+    first: &[&[f64]],
+    hf: &Half,
+    tau0: f64,
+    cl: &[Vec<usize>],
+) -> Option<Candidate> {
+    let mut cross = Vec::new();
+    let mut per_block = Vec::new();
+    for c in cl {
+        if let Some((rows, e)) = shared_fit(an, first, hf, c, tau0)
+            && let Some(s) = fit_subset(&rows, &[0, 1, 2, 3, 4])
+        {
+            cross.push(Cross::Shared {
+                members: c.clone(),
+                share: Share {
+                    part: s,
+                    independent: e,
                 },
-                level: None,
-                cross: vec![Cross::Shared {
-                    members: all.clone(),
-                    share: Share {
-                        part,
-                        independent: e,
-                    },
-                }],
-                groups: Groups::List(w.groups.clone()),
-                params,
             });
+            per_block.push(serde_json::json!({
+                "groups": c.iter().map(|&i| w.groups[i]).collect::<Vec<_>>(),
+                "shared": s.physical(),
+            }));
         }
     }
+    (cross.len() == cl.len()).then(|| Candidate {
+        kind: "block_common_mode",
+        level: None,
+        cross,
+        groups: Groups::Blocks(
+            cl.iter()
+                .map(|c| c.iter().map(|&i| w.groups[i]).collect())
+                .collect(),
+        ),
+        params: serde_json::json!({ "blocks": per_block }),
+    })
+}
 
-    if let Some(t) = temp {
-        let block = ((10.0 / tau0).round() as usize).max(1);
-        let beta = thermal_betas(first, t, block);
-        let unit = if w.kind == SensorKind::Gyro {
-            "deg/s/degC"
-        } else {
-            "g/degC"
+/// A process shared by all sensors, fitted in each shape on its own so that the held-out check, not the first
+/// half's noise, decides between them: fast (quantisation + white), flicker, or both (`common_mode`), and slow
+/// (random walk + ramp, `common_mode_drift`). (A flicker + slow shape, tried, took shared flicker for a drift.)
+/// With blocks found (`partial`), only the slow shape is offered.
+#[allow(clippy::too_many_arguments)] // the first half's data and statistics, each used; no natural bundle
+fn shared_candidates(
+    an: &mut Analyzer,
+    w: &AxisWork,
+    first: &[&[f64]],
+    hf: &Half,
+    tau0: f64,
+    temp: Option<&[f64]>,
+    partial: bool,
+    all: &[usize],
+) -> Vec<Candidate> {
+    let Some((rows, e)) = shared_fit(an, first, hf, all, tau0) else {
+        return Vec::new();
+    };
+    let mut cands = Vec::new();
+    let subsets: [&[usize]; 4] = [&[0, 1], &[2], &[0, 1, 2], &[3, 4]];
+    for subset in subsets {
+        let Some(part) = fit_subset(&rows, subset) else {
+            continue;
         };
-        let mean = beta.iter().sum::<f64>() / beta.len().max(1) as f64;
+        let slow = subset.contains(&3);
+        if partial && !slow {
+            continue;
+        }
+        let white = |t: &Terms| t.0[0] / tau0 + t.0[1];
+        let tot = Terms(std::array::from_fn(|k| part.0[k] + e.0[k]));
+        let rho_white = if white(&tot) > 0.0 {
+            white(&part) / white(&tot)
+        } else {
+            0.0
+        };
+        let rho_flicker = if tot.0[2] > 0.0 {
+            part.0[2] / tot.0[2]
+        } else {
+            0.0
+        };
+        let mut params = serde_json::json!({
+            "rho_white": rho_white,
+            "rho_flicker": rho_flicker,
+            "shared_random_walk": (3.0 * part.0[3]).sqrt(),
+            "shared_ramp": (2.0 * part.0[4]).sqrt(),
+            "shared": part.physical(),
+        });
+        if slow
+            && temp.is_none()
+            && let Some(o) = params.as_object_mut()
+        {
+            o.insert(
+                "temperature".into(),
+                "not recorded: a thermal cause cannot be separated from other shared drifts".into(),
+            );
+        }
         cands.push(Candidate {
-            kind: "thermal",
+            kind: if slow {
+                "common_mode_drift"
+            } else {
+                "common_mode"
+            },
             level: None,
-            cross: vec![Cross::Thermal { beta: beta.clone() }],
-            groups: Groups::List(w.groups.clone()),
-            params: serde_json::json!({
-                "beta": (0..ns).map(|i| (w.groups[i].to_string(), beta[i])).collect::<BTreeMap<_, _>>(),
-                "shared_beta": mean,
-                "unit": unit,
-            }),
+            cross: vec![Cross::Shared {
+                members: all.to_vec(),
+                share: Share {
+                    part,
+                    independent: e,
+                },
+            }],
+            groups: Groups::List(all.iter().map(|&i| w.groups[i]).collect()),
+            params,
         });
     }
     cands
+}
+
+/// `thermal`: each sensor's coefficient on the measured temperature (10-s block means).
+fn thermal_candidate(w: &AxisWork, first: &[&[f64]], t: &[f64], tau0: f64) -> Candidate {
+    let ns = first.len();
+    let block = ((10.0 / tau0).round() as usize).max(1);
+    let beta = thermal_betas(first, t, block);
+    let unit = if w.kind == SensorKind::Gyro {
+        "deg/s/degC"
+    } else {
+        "g/degC"
+    };
+    let mean = beta.iter().sum::<f64>() / beta.len().max(1) as f64;
+    Candidate {
+        kind: "thermal",
+        level: None,
+        cross: vec![Cross::Thermal { beta: beta.clone() }],
+        groups: Groups::List(w.groups.clone()),
+        params: serde_json::json!({
+            "beta": (0..ns).map(|i| (w.groups[i].to_string(), beta[i])).collect::<BTreeMap<_, _>>(),
+            "shared_beta": mean,
+            "unit": unit,
+        }),
+    }
 }

@@ -31,7 +31,9 @@ pub use prediction::{scan_statistic, scan_threshold};
 pub(crate) use singles::median_to_mean;
 pub mod report;
 mod selection;
+mod sensors;
 mod singles;
+pub mod steps;
 mod summary;
 
 use crate::allan::edf_for_kind;
@@ -47,6 +49,7 @@ use std::collections::BTreeMap;
 use candidates::*;
 use prediction::*;
 use selection::*;
+use sensors::*;
 use singles::*;
 use summary::*;
 
@@ -146,7 +149,8 @@ impl std::fmt::Display for Groups {
 /// One identified effect.
 #[derive(Clone, Debug, Serialize)]
 pub struct Effect {
-    /// `common_mode`, `block_common_mode`, `common_mode_drift`, `thermal`, `outlier_sensor`, `unequal_noise`.
+    /// `common_mode`, `block_common_mode`, `common_mode_drift`, `thermal`, `outlier_sensor`, `unequal_noise`,
+    /// `sensor_drift` (one sensor's own slow drift), `bias_step` (one sensor's bias jump).
     pub kind: String,
     /// `gyro` or `accel`.
     pub sensor: String,
@@ -374,7 +378,9 @@ const THERMAL_PREFERENCE: f64 = 0.8;
 /// Shortest record accepted (each half must hold a few octaves of averaging blocks).
 pub const MIN_SAMPLES: usize = 1000;
 
-/// Runs the diagnosis on a recording (all sensor columns; `temp_c` used when present).
+/// Runs the diagnosis on a recording (all sensor columns; `temp_c` used when present). Phases: the axes
+/// ([`axis_works`]), each axis measured and its candidates selected ([`analyse_axis`]), the second look at axes
+/// without an effect ([`retest_quiet_axes`]), and each axis's report ([`report_axis`]).
 pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
     let tau0 = rec
         .sample_interval_s()
@@ -385,7 +391,92 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
             "{n} samples: too short for a diagnosis (at least {MIN_SAMPLES}; hours are better)"
         ));
     }
-    let half = n / 2;
+    let raw = axis_works(rec);
+    if raw.is_empty() {
+        return Err("no axis has at least two sensors".into());
+    }
+    // One sensor's bias step, found against its neighbours and removed before anything else is measured.
+    let found: Vec<Vec<steps::Step>> = raw
+        .iter()
+        .map(|w| steps::find(&w.series, opts.p_false))
+        .collect();
+    let fixed: Vec<Vec<Option<Vec<f64>>>> = raw
+        .iter()
+        .zip(&found)
+        .map(|(w, st)| {
+            (0..w.series.len())
+                .map(|i| {
+                    st.iter()
+                        .find(|s| s.sensor == i)
+                        .map(|s| steps::remove(w.series[i], s))
+                })
+                .collect()
+        })
+        .collect();
+    let works: Vec<AxisWork> = raw
+        .iter()
+        .zip(&fixed)
+        .map(|(w, f)| AxisWork {
+            series: w
+                .series
+                .iter()
+                .zip(f)
+                .map(|(s, c)| c.as_deref().unwrap_or(s))
+                .collect(),
+            groups: w.groups.clone(),
+            ..*w
+        })
+        .collect();
+    let temp = rec
+        .temp_c
+        .as_deref()
+        .filter(|t| t.len() >= n && t.iter().all(|x| x.is_finite()));
+    let mut an = Analyzer::new();
+    let mut thresholds: BTreeMap<(usize, u64), f64> = BTreeMap::new();
+    let mut states: Vec<AxisState> = works
+        .iter()
+        .map(|w| analyse_axis(&mut an, w, tau0, temp, opts, &mut thresholds))
+        .collect();
+    retest_quiet_axes(&works, &mut states, opts, &mut thresholds);
+
+    let mut out = Assembled::default();
+    for (w, st) in works.iter().zip(states) {
+        report_axis(&mut an, w, st, tau0, opts, &mut thresholds, &mut out);
+    }
+    let Assembled {
+        axes,
+        effects,
+        curves,
+        fitted,
+        gaps,
+    } = out;
+    Ok(Report {
+        gap_before: rms(gaps.fit_before),
+        gap_after: rms(gaps.fit_after),
+        heldout: HeldOut {
+            gap_before: rms(gaps.held_before),
+            gap_after: rms(gaps.held_after),
+            rms_before: rms(gaps.raw_before),
+            rms_after: rms(gaps.raw_after),
+        },
+        effects: merge_effects(effects)
+            .into_iter()
+            .chain(step_effects(&works, &found, tau0))
+            .collect(),
+        axes,
+        samples: n,
+        tau0_s: tau0,
+        weights: opts.weights,
+        temperature: temp.is_some(),
+        min_blocks: opts.min_blocks,
+        p_false: opts.p_false,
+        curves,
+        fitted,
+    })
+}
+
+/// The axes with at least two sensors, gyro x y z then accel x y z.
+fn axis_works(rec: &Recording) -> Vec<AxisWork<'_>> {
     let mut works = Vec::new();
     for kind in [SensorKind::Gyro, SensorKind::Accel] {
         for axis in 0..3 {
@@ -404,144 +495,143 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
             }
         }
     }
-    if works.is_empty() {
-        return Err("no axis has at least two sensors".into());
-    }
-    let temp = rec
-        .temp_c
-        .as_deref()
-        .filter(|t| t.len() >= n && t.iter().all(|x| x.is_finite()));
-    let mut an = Analyzer::new();
+    works
+}
 
-    let mut axes = Vec::new();
-    let mut all_effects: Vec<(SensorKind, usize, Candidate, Acts)> = Vec::new();
-    let mut curves = Vec::new();
-    let mut fitted = Vec::new();
-    let mut gaps = Gaps::default();
-    let mut thresholds: BTreeMap<(usize, u64), f64> = BTreeMap::new();
-    let mut states: Vec<AxisState> = Vec::new();
-
-    for w in &works {
-        let ns = w.series.len();
-        let first: Vec<&[f64]> = w.series.iter().map(|s| &s[..half]).collect();
-        let second: Vec<&[f64]> = w.series.iter().map(|s| &s[half..]).collect();
-
-        // Single sensors of both halves, the typical sensor of the first.
-        let pts_first: Vec<Vec<AnalysisPoint>> =
-            first.iter().map(|s| octave(&mut an, s, tau0)).collect();
-        let pts_held: Vec<Vec<AnalysisPoint>> =
-            second.iter().map(|s| octave(&mut an, s, tau0)).collect();
-        let pts_whole: Vec<Vec<AnalysisPoint>> =
-            w.series.iter().map(|s| octave(&mut an, s, tau0)).collect();
-        let singles: Vec<NoiseFit> = pts_first.iter().map(|p| noisefit::fit(p)).collect();
-        let typical_pts: Vec<AnalysisPoint> =
-            (0..pts_first.iter().map(Vec::len).min().unwrap_or(0))
-                .map(|k| {
-                    let devs: Vec<f64> = pts_first.iter().map(|p| p[k].dev).collect();
-                    AnalysisPoint {
-                        dev: median(&devs),
-                        ..pts_first[0][k]
-                    }
-                })
+/// Weights of the cluster mean under `rule`, from the sensors' first-half noise fits.
+fn weights(rule: WeightRule, singles: &[NoiseFit]) -> Vec<f64> {
+    let ns = singles.len();
+    match rule {
+        WeightRule::Equal => vec![1.0 / ns as f64; ns],
+        WeightRule::InverseVariance => {
+            let inv: Vec<f64> = singles
+                .iter()
+                .map(|s| 1.0 / s.white.powi(2).max(1e-300))
                 .collect();
-        let typical = noisefit::fit(&typical_pts);
-        let typ_terms = terms_of(&typical);
-        let model_misfit = rms(pts_first.iter().zip(&singles).flat_map(|(p, f)| {
-            p.iter()
-                .filter(|q| q.dev > 0.0)
-                .map(move |q| (q.dev / f.avar(q.tau_s).max(1e-300).sqrt()).ln())
-        }));
-
-        let wts: Vec<f64> = match opts.weights {
-            WeightRule::Equal => vec![1.0 / ns as f64; ns],
-            WeightRule::InverseVariance => {
-                let inv: Vec<f64> = singles
-                    .iter()
-                    .map(|s| 1.0 / s.white.powi(2).max(1e-300))
-                    .collect();
-                let sum: f64 = inv.iter().sum();
-                inv.iter().map(|v| v / sum).collect()
-            }
-        };
-
-        let hf = Half::measure(
-            &mut an,
-            &first,
-            &wts,
-            tau0,
-            opts.min_blocks,
-            &typ_terms,
-            &pts_first,
-            temp.map(|t| &t[..half]),
-        );
-        let hh = Half::measure(
-            &mut an,
-            &second,
-            &wts,
-            tau0,
-            opts.min_blocks,
-            &typ_terms,
-            &pts_held,
-            temp.map(|t| &t[half..]),
-        );
-
-        let cands = candidates(
-            &mut an,
-            w,
-            &first,
-            &hf,
-            tau0,
-            temp.map(|t| &t[..half]),
-            &typ_terms,
-            opts,
-        );
-        let hw = Half::measure(
-            &mut an,
-            &w.series,
-            &wts,
-            tau0,
-            opts.min_blocks,
-            &typ_terms,
-            &pts_whole,
-            temp,
-        );
-        let thr = threshold(&mut thresholds, hw.len(), opts.p_false);
-        let chosen = select(&cands, &hw, &hh, &wts, opts, thr, None);
-        states.push(AxisState {
-            hf,
-            hw,
-            pts_whole,
-            hh,
-            cands,
-            chosen,
-            wts,
-            typical,
-            typ_terms,
-            model_misfit,
-        });
+            let sum: f64 = inv.iter().sum();
+            inv.iter().map(|v| v / sum).collect()
+        }
     }
+}
 
-    // Effects are shared by the axes of a sensor more often than not (a thermal bias, a common mode): an axis
-    // with no effect of its own is tested again, at the looser `p_sibling`, for the kinds found on its siblings;
-    // and for any kind when the sensor's axes together hold a significant gap (the scan of their summed z-scores,
-    // divided by √axes, at `p_false`) that none of them shows alone.
+/// Phase 1 of an axis: single sensors and the typical sensor, the three halves measured (first, held-out, whole),
+/// the candidates fitted on the first half and selected on the held-out one.
+fn analyse_axis(
+    an: &mut Analyzer,
+    w: &AxisWork,
+    tau0: f64,
+    temp: Option<&[f64]>,
+    opts: &Options,
+    thresholds: &mut BTreeMap<(usize, u64), f64>,
+) -> AxisState {
+    let half = w.series[0].len() / 2;
+    let first: Vec<&[f64]> = w.series.iter().map(|s| &s[..half]).collect();
+    let second: Vec<&[f64]> = w.series.iter().map(|s| &s[half..]).collect();
+
+    // Single sensors of both halves, the typical sensor of the first.
+    let pts_first: Vec<Vec<AnalysisPoint>> = first.iter().map(|s| octave(an, s, tau0)).collect();
+    let pts_held: Vec<Vec<AnalysisPoint>> = second.iter().map(|s| octave(an, s, tau0)).collect();
+    let pts_whole: Vec<Vec<AnalysisPoint>> = w.series.iter().map(|s| octave(an, s, tau0)).collect();
+    let singles: Vec<NoiseFit> = pts_first.iter().map(|p| noisefit::fit(p)).collect();
+    let typical_pts: Vec<AnalysisPoint> = (0..pts_first.iter().map(Vec::len).min().unwrap_or(0))
+        .map(|k| {
+            let devs: Vec<f64> = pts_first.iter().map(|p| p[k].dev).collect();
+            AnalysisPoint {
+                dev: median(&devs),
+                ..pts_first[0][k]
+            }
+        })
+        .collect();
+    let typical = noisefit::fit(&typical_pts);
+    let typ_terms = terms_of(&typical);
+    let model_misfit = rms(pts_first.iter().zip(&singles).flat_map(|(p, f)| {
+        p.iter()
+            .filter(|q| q.dev > 0.0)
+            .map(move |q| (q.dev / f.avar(q.tau_s).max(1e-300).sqrt()).ln())
+    }));
+    let wts = weights(opts.weights, &singles);
+
+    let mb = opts.min_blocks;
+    let hf = Half::measure(
+        an,
+        &first,
+        &wts,
+        tau0,
+        mb,
+        &typ_terms,
+        &pts_first,
+        temp.map(|t| &t[..half]),
+    );
+    let hh = Half::measure(
+        an,
+        &second,
+        &wts,
+        tau0,
+        mb,
+        &typ_terms,
+        &pts_held,
+        temp.map(|t| &t[half..]),
+    );
+    let cands = candidates(
+        an,
+        w,
+        &first,
+        &hf,
+        tau0,
+        temp.map(|t| &t[..half]),
+        &typ_terms,
+        opts,
+    );
+    let hw = Half::measure(an, &w.series, &wts, tau0, mb, &typ_terms, &pts_whole, temp);
+    let thr = threshold(thresholds, hw.len(), opts.p_false);
+    let mut chosen = select(&cands, &hw, &hh, &wts, opts, thr, None);
+    // A sensor's own drift is named on per-sensor evidence, confirmed on the held-out half.
+    if let Some(c) = cands.iter().position(|c| c.kind == "sensor_drift")
+        && !chosen.contains(&c)
+        && cands[c].cross.iter().any(|x| match x {
+            Cross::Own { sensor, .. } => confirmed(&hh, *sensor, opts),
+            _ => false,
+        })
+    {
+        chosen.push(c);
+    }
+    AxisState {
+        hf,
+        hw,
+        pts_whole,
+        hh,
+        cands,
+        chosen,
+        wts,
+        typical,
+        typ_terms,
+        model_misfit,
+    }
+}
+
+/// Effects are shared by the axes of a sensor more often than not (a thermal bias, a common mode): an axis with no
+/// effect of its own is tested again, at the looser `p_sibling`, for the kinds found on its siblings; and for any
+/// kind when the sensor's axes together hold a significant gap (the scan of their summed z-scores, divided by
+/// √axes, at `p_false`) that none of them shows alone.
+fn retest_quiet_axes(
+    works: &[AxisWork],
+    states: &mut [AxisState],
+    opts: &Options,
+    thresholds: &mut BTreeMap<(usize, u64), f64>,
+) {
     let pooled: Vec<bool> = works
         .iter()
         .map(|w| {
             let zs: Vec<Vec<f64>> = states
                 .iter()
-                .zip(&works)
+                .zip(works)
                 .filter(|(_, x)| x.kind == w.kind)
                 .map(|(st, _)| {
-                    evaluate(
-                        &Model::independent(st.wts.len()),
-                        &st.hw,
-                        &st.wts,
-                        opts.model_tolerance,
-                    )
-                    .iter()
-                    .map(|p| p.z)
-                    .collect()
+                    let p0 = Model::independent(st.wts.len());
+                    evaluate(&p0, &st.hw, &st.wts, opts.model_tolerance)
+                        .iter()
+                        .map(|p| p.z)
+                        .collect()
                 })
                 .collect();
             let n = zs.iter().map(Vec::len).min().unwrap_or(0);
@@ -549,7 +639,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
             let sum: Vec<f64> = (0..n)
                 .map(|t| zs.iter().map(|z| z[t]).sum::<f64>() / k.sqrt())
                 .collect();
-            n > 0 && scan_statistic(&sum) > threshold(&mut thresholds, n, opts.p_false)
+            n > 0 && scan_statistic(&sum) > threshold(thresholds, n, opts.p_false)
         })
         .collect();
     for i in 0..states.len() {
@@ -558,7 +648,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
         }
         let kinds: Vec<&'static str> = states
             .iter()
-            .zip(&works)
+            .zip(works)
             .filter(|(_, w)| w.kind == works[i].kind)
             .flat_map(|(st, _)| st.chosen.iter().map(|&c| st.cands[c].kind))
             .collect();
@@ -567,67 +657,50 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
         }
         let st = &states[i];
         let chosen = if kinds.is_empty() {
-            let thr = threshold(&mut thresholds, st.hw.len(), opts.p_sibling);
+            let thr = threshold(thresholds, st.hw.len(), opts.p_sibling);
             select(&st.cands, &st.hw, &st.hh, &st.wts, opts, thr, None)
         } else {
             sibling(st, &kinds, opts).into_iter().collect()
         };
         states[i].chosen = chosen;
     }
+}
 
-    for (w, st) in works.iter().zip(states) {
-        let AxisState {
-            hf,
-            hw,
-            pts_whole,
-            hh,
-            cands,
-            chosen,
-            wts,
-            typical,
-            typ_terms,
-            model_misfit,
-        } = st;
-        let ns = w.series.len();
-        let refs: Vec<&Candidate> = chosen.iter().map(|&i| &cands[i]).collect();
-        let p0 = Model::independent(ns);
-        let model = build(ns, &refs);
+/// What the per-axis reports add up to.
+#[derive(Default)]
+struct Assembled {
+    axes: Vec<AxisReport>,
+    effects: Vec<(SensorKind, usize, Candidate, Acts)>,
+    curves: Vec<AxisCurves>,
+    fitted: Vec<AxisFit>,
+    gaps: Gaps,
+}
 
-        let before_fit = evaluate(&p0, &hf, &wts, opts.model_tolerance);
-        let after_fit = evaluate(&model, &hf, &wts, opts.model_tolerance);
-        let before = evaluate(&p0, &hh, &wts, opts.model_tolerance);
-        let after = evaluate(&model, &hh, &wts, opts.model_tolerance);
-        // The excess gap counts on an axis whose remaining gap is significant (the selection's own test), so a
-        // chance excursion of a few long-τ points on a clean axis is not reported as a gap.
-        let thr = threshold(&mut thresholds, hw.len(), opts.p_false);
-        let sig = [
-            significant(&evaluate(&p0, &hw, &wts, opts.model_tolerance), thr),
-            significant(&evaluate(&model, &hw, &wts, opts.model_tolerance), thr),
-        ];
-        let ex = |p: &[PointGap], on: bool| {
-            if on {
-                rms(p.iter().map(|x| excess(x, opts.z)))
-            } else {
-                0.0
-            }
-        };
-        gaps.add(&before_fit, &after_fit, &before, &after, opts.z, sig);
+/// Predicted white-region deviation ratio of the equal mean over the inverse-variance mean under `model`.
+fn weighting_recovers(model: &Model, hh: &Half, ns: usize) -> f64 {
+    if hh.len() == 0 {
+        return 1.0;
+    }
+    let inv: Vec<f64> = model.level.iter().map(|q| 1.0 / q.max(1e-300)).collect();
+    let sum: f64 = inv.iter().sum();
+    let iv: Vec<f64> = inv.iter().map(|v| v / sum).collect();
+    let eq = vec![1.0 / ns as f64; ns];
+    let (t, v, th) = (hh.tau_s[0], hh.typical[0], hh.temp[0]);
+    (model.avar(&eq, t, v, th) / model.avar(&iv, t, v, th).max(1e-300)).sqrt()
+}
 
-        let (taus, independence) = tau_rows(&hh, &wts, &p0, &model, &before, &after);
-        let label = axis_label(w.kind, w.axis);
-        let regions = regions(&typ_terms, &hh, &before, &after, opts.z);
-        let (rms_gain, bias_stability_gain) = gains(&mut an, &w.series, &pts_whole, &wts, tau0);
-        let weighting_recovers = if hh.len() > 0 {
-            let inv: Vec<f64> = model.level.iter().map(|q| 1.0 / q.max(1e-300)).collect();
-            let sum: f64 = inv.iter().sum();
-            let iv: Vec<f64> = inv.iter().map(|v| v / sum).collect();
-            let eq = vec![1.0 / ns as f64; ns];
-            let (t, v, th) = (hh.tau_s[0], hh.typical[0], hh.temp[0]);
-            (model.avar(&eq, t, v, th) / model.avar(&iv, t, v, th).max(1e-300)).sqrt()
-        } else {
-            1.0
-        };
-        for (pos, &i) in chosen.iter().enumerate() {
+/// Where each chosen effect acts: its share of the held-out prediction, with − without it.
+fn effects_of(
+    w: &AxisWork,
+    st: &AxisState,
+    model: &Model,
+) -> Vec<(SensorKind, usize, Candidate, Acts)> {
+    let ns = w.series.len();
+    let AxisState { cands, chosen, .. } = st;
+    chosen
+        .iter()
+        .enumerate()
+        .map(|(pos, &i)| {
             let others: Vec<&Candidate> = chosen
                 .iter()
                 .enumerate()
@@ -636,77 +709,149 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
                 .collect();
             let a = acts(
                 cands[i].nature(),
-                &hh,
-                &wts,
-                &model,
+                &st.hh,
+                &st.wts,
+                model,
                 &build(ns, &others),
-                &typ_terms,
+                &st.typ_terms,
             );
-            all_effects.push((w.kind, w.axis, cands[i].clone(), a));
-        }
-        curves.push(AxisCurves {
-            axis: label.clone(),
-            before: taus.iter().map(|r| r.predicted_before).collect(),
-            after: taus.iter().map(|r| r.predicted_after).collect(),
-            measured: Measured {
-                tau_s: taus.iter().map(|r| r.tau_s).collect(),
-                dev: taus.iter().map(|r| r.dev).collect(),
-                lo: taus.iter().map(|r| r.dev_lo).collect(),
-                hi: taus.iter().map(|r| r.dev_hi).collect(),
-                edf: taus.iter().map(|r| r.edf).collect(),
-                sigma_ln: taus.iter().map(|r| 1.0 / (2.0 * r.edf).sqrt()).collect(),
-            },
-        });
-        fitted.push(AxisFit {
-            kind: w.kind,
-            axis: w.axis,
-            groups: w.groups.clone(),
-            effects: refs.iter().map(|c| c.kind).collect(),
-            level: refs.iter().rev().find_map(|c| c.level.clone()),
-            cross: refs
-                .iter()
-                .flat_map(|c| c.cross.iter().map(move |x| (c.kind, x.clone())))
-                .collect(),
-        });
-        axes.push(AxisReport {
-            axis: label,
-            sensors: ns,
-            expected_gain: (ns as f64).sqrt(),
-            rms_gain,
-            bias_stability_gain,
-            weighting_recovers,
-            heldout_gap: [ex(&before, sig[0]), ex(&after, sig[1])],
-            gap: [ex(&before_fit, sig[0]), ex(&after_fit, sig[1])],
-            significant: sig,
-            regions,
-            taus,
-            independence,
-            typical,
-            model_misfit,
-            effects: refs.iter().map(|c| c.kind.to_string()).collect(),
-        });
-    }
+            (w.kind, w.axis, cands[i].clone(), a)
+        })
+        .collect()
+}
 
-    Ok(Report {
-        gap_before: rms(gaps.fit_before),
-        gap_after: rms(gaps.fit_after),
-        heldout: HeldOut {
-            gap_before: rms(gaps.held_before),
-            gap_after: rms(gaps.held_after),
-            rms_before: rms(gaps.raw_before),
-            rms_after: rms(gaps.raw_after),
+/// Phase 3 of an axis: the final model evaluated on both halves, its rows, regions, gains and effects.
+fn report_axis(
+    an: &mut Analyzer,
+    w: &AxisWork,
+    st: AxisState,
+    tau0: f64,
+    opts: &Options,
+    thresholds: &mut BTreeMap<(usize, u64), f64>,
+    out: &mut Assembled,
+) {
+    let ns = w.series.len();
+    let (hf, hw, hh, wts) = (&st.hf, &st.hw, &st.hh, &st.wts);
+    let refs: Vec<&Candidate> = st.chosen.iter().map(|&i| &st.cands[i]).collect();
+    let p0 = Model::independent(ns);
+    let model = build(ns, &refs);
+    let tol = opts.model_tolerance;
+
+    let before_fit = evaluate(&p0, hf, wts, tol);
+    let after_fit = evaluate(&model, hf, wts, tol);
+    let before = evaluate(&p0, hh, wts, tol);
+    let after = evaluate(&model, hh, wts, tol);
+    // The excess gap counts on an axis whose remaining gap is significant (the selection's own test), so a chance
+    // excursion of a few long-τ points on a clean axis is not reported as a gap.
+    let thr = threshold(thresholds, hw.len(), opts.p_false);
+    let sig = [
+        significant(&evaluate(&p0, hw, wts, tol), thr),
+        significant(&evaluate(&model, hw, wts, tol), thr),
+    ];
+    let ex = |p: &[PointGap], on: bool| {
+        if on {
+            rms(p.iter().map(|x| excess(x, opts.z)))
+        } else {
+            0.0
+        }
+    };
+    out.gaps
+        .add(&before_fit, &after_fit, &before, &after, opts.z, sig);
+
+    let (taus, independence) = tau_rows(hh, wts, &p0, &model, &before, &after);
+    let label = axis_label(w.kind, w.axis);
+    let regions = regions(&st.typ_terms, hh, &before, &after, opts.z);
+    let (rms_gain, bias_stability_gain) = gains(an, &w.series, &st.pts_whole, wts, tau0);
+    let weighting_recovers = weighting_recovers(&model, hh, ns);
+    out.effects.extend(effects_of(w, &st, &model));
+    out.curves.push(AxisCurves {
+        axis: label.clone(),
+        before: taus.iter().map(|r| r.predicted_before).collect(),
+        after: taus.iter().map(|r| r.predicted_after).collect(),
+        measured: Measured {
+            tau_s: taus.iter().map(|r| r.tau_s).collect(),
+            dev: taus.iter().map(|r| r.dev).collect(),
+            lo: taus.iter().map(|r| r.dev_lo).collect(),
+            hi: taus.iter().map(|r| r.dev_hi).collect(),
+            edf: taus.iter().map(|r| r.edf).collect(),
+            sigma_ln: taus.iter().map(|r| 1.0 / (2.0 * r.edf).sqrt()).collect(),
         },
-        effects: merge_effects(all_effects),
-        axes,
-        samples: n,
-        tau0_s: tau0,
-        weights: opts.weights,
-        temperature: temp.is_some(),
-        min_blocks: opts.min_blocks,
-        p_false: opts.p_false,
-        curves,
-        fitted,
-    })
+    });
+    out.fitted.push(AxisFit {
+        kind: w.kind,
+        axis: w.axis,
+        groups: w.groups.clone(),
+        effects: refs.iter().map(|c| c.kind).collect(),
+        level: refs.iter().rev().find_map(|c| c.level.clone()),
+        cross: refs
+            .iter()
+            .flat_map(|c| c.cross.iter().map(move |x| (c.kind, x.clone())))
+            .collect(),
+    });
+    let effects = refs.iter().map(|c| c.kind.to_string()).collect();
+    out.axes.push(AxisReport {
+        axis: label,
+        sensors: ns,
+        expected_gain: (ns as f64).sqrt(),
+        rms_gain,
+        bias_stability_gain,
+        weighting_recovers,
+        heldout_gap: [ex(&before, sig[0]), ex(&after, sig[1])],
+        gap: [ex(&before_fit, sig[0]), ex(&after_fit, sig[1])],
+        significant: sig,
+        regions,
+        taus,
+        independence,
+        typical: st.typical,
+        model_misfit: st.model_misfit,
+        effects,
+    });
+}
+
+/// The `bias_step` effects, one per sensor and axis: time and size of the step, its score and threshold.
+fn step_effects(works: &[AxisWork], found: &[Vec<steps::Step>], tau0: f64) -> Vec<Effect> {
+    let mut out = Vec::new();
+    for (w, st) in works.iter().zip(found) {
+        for s in st {
+            let ax = AXIS_NAMES.get(w.axis).copied().unwrap_or('?').to_string();
+            let window = s.window as f64 * tau0;
+            let n = w.series[s.sensor].len();
+            let mut params = BTreeMap::new();
+            params.insert(
+                ax.clone(),
+                serde_json::json!({
+                    "at_s": s.at as f64 * tau0,
+                    "at_fraction": s.at as f64 / n as f64,
+                    "size": s.size,
+                    "z": s.z,
+                    "threshold_z": s.threshold,
+                    "window_s": window,
+                }),
+            );
+            out.push(Effect {
+                kind: "bias_step".into(),
+                sensor: w.kind.name().into(),
+                axes: ax,
+                groups: Groups::List(vec![w.groups[s.sensor]]),
+                region: "step".into(),
+                tau_s: [window, window],
+                tau_at_max_s: window,
+                share: step_share(s, n),
+                params,
+            });
+        }
+    }
+    out
+}
+
+/// The step's share of its own sensor's overlapping Allan variance at the detection window τ = mτ₀, from the
+/// closed form of a step Δ in n samples, `Δ²·m/(3(n − 2m))` (the 2m straddling differences, triangular), against
+/// the noise that made its score: `Δ²/z²` is `2σ²_A`.
+fn step_share(s: &steps::Step, n: usize) -> f64 {
+    let m = s.window as f64;
+    let step = s.size.powi(2) * m / (3.0 * (n as f64 - 2.0 * m).max(1.0));
+    let noise = 0.5 * s.size.powi(2) / s.z.powi(2).max(1e-300);
+    step / (step + noise)
 }
 
 /// Region, τ range, τ of max and max share of an effect (see [`acts`]).

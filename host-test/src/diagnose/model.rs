@@ -101,6 +101,14 @@ pub enum Cross {
         /// Coefficient per sensor, unit/°C.
         beta: Vec<f64>,
     },
+    /// One sensor's own slow process (`sensor_drift`): sensor `sensor` adds the Allan variance `part(τ)`
+    /// (absolute, unit²) to its own, so the cluster gains `w_i² part(τ)`; no cross covariance.
+    Own {
+        /// The sensor (index into the axis's sensors).
+        sensor: usize,
+        /// Its added Allan-variance terms.
+        part: Terms,
+    },
 }
 
 /// A prediction model of one axis.
@@ -141,6 +149,7 @@ impl Model {
                     let s2: f64 = beta.iter().zip(w).map(|(b, wi)| (b * wi).powi(2)).sum();
                     v += (s * s - s2) * temp_avar.unwrap_or(0.0);
                 }
+                Cross::Own { sensor, part } => v += wt(*sensor).powi(2) * part.avar(tau_s),
             }
         }
         v

@@ -178,7 +178,10 @@ pub(super) fn merge_effects(found: Vec<(SensorKind, usize, Candidate, Acts)>) ->
                 serde_json::json!({"region": region, "tau_s": tau, "tau_at_max_s": tau_max, "share_of_cluster_avar": share}),
             );
         }
-        let per_group = c.kind == "outlier_sensor" || c.kind == "block_common_mode";
+        let per_group = matches!(
+            c.kind,
+            "outlier_sensor" | "block_common_mode" | "sensor_drift"
+        );
         let same = out.iter_mut().find(|e| {
             e.kind == c.kind && e.sensor == kind.name() && (!per_group || e.groups == c.groups)
         });

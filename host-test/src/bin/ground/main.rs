@@ -31,7 +31,7 @@ enum Cmd {
     /// paper's Tables 1 and 2 recomputed with ADEV plots and a report.
     Demo(demo::Args),
     /// Simulate a cluster recording from a noise model with optional effects (frame log .bin or CSV .csv).
-    Simulate(simulate::Args),
+    Simulate(Box<simulate::Args>),
     /// Convert a frame log or MIMU4444 stream (or any recording) to the interchange CSV (°/s, g), through a
     /// calibration into the cluster frame.
     Import(import::Args),
@@ -55,7 +55,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.cmd {
         Cmd::Demo(a) => demo::run(a),
-        Cmd::Simulate(a) => simulate::run(a),
+        Cmd::Simulate(a) => simulate::run(*a),
         Cmd::Import(a) => import::run(a),
         Cmd::Calibrate(a) => calibrate::run(a),
         Cmd::Replay(a) => replay::run(a),

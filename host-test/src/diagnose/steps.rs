@@ -1,0 +1,225 @@
+//! `bias_step`: one sensor's bias jumps, found on that sensor against its neighbours, not through the cluster mean.
+//!
+//! Each sensor's deviation from the others, `d_i = y_i − median_{j≠i} y_j` (block means of `B` samples, so that
+//! what all sensors see cancels), is scanned for the best single change point at every octave window `L` (blocks):
+//! `Δ(k, L) = mean(d[k..k+L]) − mean(d[k−L..k])`. Without a step `Var Δ = 2·σ²_A(L)`, the Allan variance of `d` at
+//! `τ = L·B·τ₀` (the two adjacent means are exactly an Allan difference), taken as the larger of the typical
+//! sensor's (median over sensors of their `d`'s overlapping AVAR, corrected to a mean) and the sensor's own robust
+//! estimate (median of its `Δ²`, which a single step moves little), so a noisier sensor is not read as stepping.
+//! The largest `|Δ|/√(2σ²_A)` over windows and times is compared with a Bonferroni threshold over the sensors and
+//! the roughly `n_blocks/L` independent windows at each `L`; a step found is reported with its time and size and
+//! removed from the sensor's series before the rest of the diagnosis (spec: `docs/diagnose.md`).
+
+use super::singles::median_to_mean;
+use crate::stats::median;
+use statrs::distribution::{ContinuousCDF, Normal};
+
+/// Blocks the scan works on at most (the block length is `n / MAX_BLOCKS`, at least one sample).
+const MAX_BLOCKS: usize = 8192;
+
+/// One sensor's bias step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Step {
+    /// Index of the sensor in its axis.
+    pub sensor: usize,
+    /// First sample after the step.
+    pub at: usize,
+    /// Size (after − before), the series' unit.
+    pub size: f64,
+    /// Its score, `|Δ|/√(2σ²_A)` at the best window.
+    pub z: f64,
+    /// The threshold it passed.
+    pub threshold: f64,
+    /// The best window (each side), samples.
+    pub window: usize,
+}
+
+/// Block means of `y` over `b` samples (the tail that does not fill a block is left out).
+fn blocks(y: &[f64], b: usize) -> Vec<f64> {
+    y.chunks_exact(b)
+        .map(|c| c.iter().sum::<f64>() / b as f64)
+        .collect()
+}
+
+/// `d_i`: each sensor's block means minus the median of the others'.
+fn deviations(series: &[&[f64]], b: usize) -> Vec<Vec<f64>> {
+    let bm: Vec<Vec<f64>> = series.iter().map(|s| blocks(s, b)).collect();
+    let nb = bm.iter().map(Vec::len).min().unwrap_or(0);
+    let ns = series.len();
+    let mut out = vec![vec![0.0; nb]; ns];
+    let mut others = Vec::with_capacity(ns);
+    for k in 0..nb {
+        for i in 0..ns {
+            others.clear();
+            others.extend((0..ns).filter(|&j| j != i).map(|j| bm[j][k]));
+            out[i][k] = bm[i][k] - median(&others);
+        }
+    }
+    out
+}
+
+/// `Δ(k, L)` for every `k` in `L..=nb−L`, from the prefix sums of `d`.
+fn differences(prefix: &[f64], l: usize) -> Vec<f64> {
+    let nb = prefix.len() - 1;
+    (l..=nb - l)
+        .map(|k| {
+            let after = prefix[k + l] - prefix[k];
+            let before = prefix[k] - prefix[k - l];
+            (after - before) / l as f64
+        })
+        .collect()
+}
+
+/// Two-sided normal quantile for probability `p` in the tails.
+fn z_two_sided(p: f64) -> f64 {
+    Normal::new(0.0, 1.0)
+        .map(|n| -n.inverse_cdf((p / 2.0).max(1e-300)))
+        .unwrap_or(f64::INFINITY)
+}
+
+/// The bias steps of one axis's sensors (`series`, all of equal length), at false-alarm probability `p_false` for
+/// the whole axis. At most one step per sensor (the largest); none with fewer than four sensors.
+pub fn find(series: &[&[f64]], p_false: f64) -> Vec<Step> {
+    let ns = series.len();
+    let n = series.iter().map(|s| s.len()).min().unwrap_or(0);
+    if ns < 4 || n < 64 {
+        return Vec::new();
+    }
+    let b = (n / MAX_BLOCKS).max(1);
+    let d = deviations(series, b);
+    let nb = d[0].len();
+    let prefix: Vec<Vec<f64>> = d
+        .iter()
+        .map(|x| {
+            std::iter::once(0.0)
+                .chain(x.iter().scan(0.0, |s, v| {
+                    *s += v;
+                    Some(*s)
+                }))
+                .collect()
+        })
+        .collect();
+    let windows: Vec<usize> = (0..)
+        .map(|k| 1usize << k)
+        .take_while(|&l| 8 * l <= nb)
+        .collect();
+    let tests: f64 = windows.iter().map(|&l| nb as f64 / l as f64).sum::<f64>() * ns as f64;
+    let threshold = z_two_sided(p_false / tests.max(1.0));
+    let mut best: Vec<Option<(f64, usize, usize, f64)>> = vec![None; ns];
+    for &l in &windows {
+        let diffs: Vec<Vec<f64>> = prefix.iter().map(|p| differences(p, l)).collect();
+        let avar: Vec<f64> = diffs
+            .iter()
+            .map(|x| 0.5 * x.iter().map(|v| v * v).sum::<f64>() / x.len() as f64)
+            .collect();
+        // The median of ns estimates of about nb/L − 1 degrees of freedom, corrected to a mean.
+        let nu = (nb as f64 / l as f64 - 1.0).max(1.0);
+        let typical = median(&avar) * median_to_mean(nu);
+        for (i, x) in diffs.iter().enumerate() {
+            let sq: Vec<f64> = x.iter().map(|v| v * v).collect();
+            // Median of Δ² over k: 0.4549·Var Δ for a normal Δ.
+            let own = 0.5 * median(&sq) / 0.454_936_4;
+            let sd = (2.0 * typical.max(own)).sqrt();
+            if sd.is_nan() || sd <= 0.0 {
+                continue;
+            }
+            if let Some((k, v)) = x
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+            {
+                let z = v.abs() / sd;
+                if best[i].is_none_or(|bst| z > bst.0) {
+                    best[i] = Some((z, k + l, l, *v));
+                }
+            }
+        }
+    }
+    best.iter()
+        .enumerate()
+        .filter_map(|(i, b0)| {
+            let (z, k, l, size) = (*b0)?;
+            (z > threshold).then_some(Step {
+                sensor: i,
+                at: k * b,
+                size,
+                z,
+                threshold,
+                window: l * b,
+            })
+        })
+        .collect()
+}
+
+/// `y` with the step removed (the samples from `at` on shifted back by `size`).
+pub fn remove(y: &[f64], s: &Step) -> Vec<f64> {
+    y.iter()
+        .enumerate()
+        .map(|(t, v)| if t >= s.at { v - s.size } else { *v })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn gauss(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
+            let mut u = || {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                (s >> 11) as f64 / (1u64 << 53) as f64
+            };
+            let (a, b) = (u().max(1e-300), u());
+            (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+        }
+    }
+
+    fn cluster(seed: u64, n: usize, ns: usize) -> Vec<Vec<f64>> {
+        let mut g = gauss(seed);
+        let shared: Vec<f64> = (0..n).map(|_| g()).collect();
+        (0..ns)
+            .map(|_| shared.iter().map(|c| 3.0 * c + g()).collect())
+            .collect()
+    }
+
+    #[test]
+    fn white_clusters_have_no_step() {
+        let mut found = 0;
+        for seed in 1..=20u64 {
+            let c = cluster(seed * 7919, 20_000, 8);
+            let refs: Vec<&[f64]> = c.iter().map(Vec::as_slice).collect();
+            found += find(&refs, 2e-3).len();
+        }
+        assert_eq!(found, 0, "steps found in clean white clusters");
+    }
+
+    #[test]
+    fn one_sensors_step_is_found_with_its_time_and_size() {
+        let (n, at, size) = (20_000, 6_000, 0.3);
+        let mut c = cluster(42, n, 8);
+        for v in &mut c[5][at..] {
+            *v += size;
+        }
+        let refs: Vec<&[f64]> = c.iter().map(Vec::as_slice).collect();
+        let s = find(&refs, 2e-3);
+        assert_eq!(s.len(), 1, "{s:?}");
+        assert_eq!(s[0].sensor, 5);
+        // The step's size over a window of L samples each side has sd ≈ √(2/L) (plus the others' median).
+        assert!(
+            (s[0].size - size).abs() < 4.0 * (2.5 / s[0].window as f64).sqrt(),
+            "{s:?}"
+        );
+        assert!(
+            (s[0].at as i64 - at as i64).abs() <= s[0].window as i64 / 2,
+            "{s:?}"
+        );
+        let fixed = remove(refs[5], &s[0]);
+        let mut c2 = c.clone();
+        c2[5] = fixed;
+        let refs2: Vec<&[f64]> = c2.iter().map(Vec::as_slice).collect();
+        assert!(find(&refs2, 2e-3).is_empty());
+    }
+}
