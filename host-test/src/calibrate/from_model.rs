@@ -24,7 +24,7 @@ use super::file::{CalibrationFile, GroupThermalF64};
 use super::weights::{AxisWeights, GroupsWeights, WeightOptions, solve, table_scale};
 use crate::formats::csv::SensorKind;
 use crate::twin::{AxisModel, ClusterModel};
-use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3};
+use nalgebra::{DMatrix, Matrix3, SMatrix, Vector3};
 
 /// Share of `S` moved to its diagonal for a model's exact covariances (see the module docs).
 pub const MODEL_RIDGE: f64 = 1e-9;
@@ -189,7 +189,6 @@ fn axis_weights(
     axis: &AxisModel,
     opts: &WeightOptions,
 ) -> Result<GroupsWeights, CalibError> {
-    let n = axis.sensors.len();
     let rate = model.record.rate_hz;
     let tau_cap = model.record.duration_s * MAX_TAU_FRACTION;
     if !(opts.tau_min_s > 0.0 && opts.tau_max_s >= opts.tau_min_s && rate > 0.0) {
@@ -209,15 +208,7 @@ fn axis_weights(
     }
     let covs: Vec<DMatrix<f64>> = taus.iter().map(|&t| model_covariance(axis, t)).collect();
     let w = solve(&covs, MODEL_RIDGE, opts.allow_negative)?;
-    let equal = DVector::from_element(n, 1.0 / n as f64);
-    let dev = |v: &DVector<f64>, c: &DMatrix<f64>| (v.transpose() * c * v)[(0, 0)].max(0.0).sqrt();
-    let aw = AxisWeights {
-        weights: w.iter().copied().collect(),
-        adev_weighted: covs.iter().map(|c| dev(&w, c)).collect(),
-        adev_equal: covs.iter().map(|c| dev(&equal, c)).collect(),
-        taus_s: taus,
-        held_out: None,
-    };
+    let aw = AxisWeights::evaluated(&w, &covs, taus);
     Ok((axis.sensors.iter().map(|s| s.group).collect(), aw))
 }
 

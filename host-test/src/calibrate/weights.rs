@@ -51,6 +51,23 @@ pub struct AxisWeights {
     pub held_out: Option<HeldOut>,
 }
 
+impl AxisWeights {
+    /// The weights `w` with the fused deviations, weighted and equal, that the covariances `covs` at `taus_s` give
+    /// (no held-out check).
+    pub fn evaluated(w: &DVector<f64>, covs: &[DMatrix<f64>], taus_s: Vec<f64>) -> Self {
+        let equal = DVector::from_element(w.len(), 1.0 / w.len().max(1) as f64);
+        let dev =
+            |v: &DVector<f64>, c: &DMatrix<f64>| (v.transpose() * c * v)[(0, 0)].max(0.0).sqrt();
+        Self {
+            weights: w.iter().copied().collect(),
+            taus_s,
+            adev_weighted: covs.iter().map(|c| dev(w, c)).collect(),
+            adev_equal: covs.iter().map(|c| dev(&equal, c)).collect(),
+            held_out: None,
+        }
+    }
+}
+
 /// Fused Allan deviations of data the weights were not fitted on.
 #[derive(Clone, Debug, PartialEq)]
 pub struct HeldOut {
@@ -200,15 +217,8 @@ pub fn recommend(
     }
     let covs: Vec<DMatrix<f64>> = ms.iter().map(|&m| allan_covariance(series, m)).collect();
     let w = solve(&covs, SHRINKAGE, opts.allow_negative)?;
-    let equal = DVector::from_element(n, 1.0 / n as f64);
-    let dev = |v: &DVector<f64>, c: &DMatrix<f64>| (v.transpose() * c * v)[(0, 0)].max(0.0).sqrt();
-    Ok(AxisWeights {
-        weights: w.iter().copied().collect(),
-        taus_s: ms.iter().map(|&m| m as f64 / rate_hz).collect(),
-        adev_weighted: covs.iter().map(|c| dev(&w, c)).collect(),
-        adev_equal: covs.iter().map(|c| dev(&equal, c)).collect(),
-        held_out: None,
-    })
+    let taus_s = ms.iter().map(|&m| m as f64 / rate_hz).collect();
+    Ok(AxisWeights::evaluated(&w, &covs, taus_s))
 }
 
 /// [`recommend`] on the first half of `series`, evaluated on the second half (the weights returned are the first
