@@ -62,12 +62,7 @@ pub fn from_model(
             };
             let (gs, w) = axis_weights(model, axis, opts)?;
             for (&g, x) in gs.iter().zip(table_scale(&w.weights)) {
-                let row = table.get_mut(g).ok_or(CalibError::Count {
-                    what: "groups of the base (a model's sensor lies beyond them)",
-                    expected: groups,
-                    found: g + 1,
-                })?;
-                row[slot] = x;
+                group_row(&mut table, g)?[slot] = x;
             }
             axes.push((axis.axis.clone(), (gs, w)));
         }
@@ -83,6 +78,16 @@ pub fn from_model(
         thermal_sensors,
         model_t_ref_c,
         axes,
+    })
+}
+
+/// Group `g`'s row of a per-group table of the base; a model sensor beyond the base's groups is an error.
+fn group_row(rows: &mut [[f64; 6]], g: usize) -> Result<&mut [f64; 6], CalibError> {
+    let groups = rows.len();
+    rows.get_mut(g).ok_or(CalibError::Count {
+        what: "groups of the base (a model's sensor lies beyond them)",
+        expected: groups,
+        found: g + 1,
     })
 }
 
@@ -112,12 +117,7 @@ fn add_thermal(
             continue;
         };
         for s in axis.sensors.iter().filter(|s| s.thermal_per_c != 0.0) {
-            let row = beta.get_mut(s.group).ok_or(CalibError::Count {
-                what: "groups of the base (a model's sensor lies beyond them)",
-                expected: file.groups.len(),
-                found: s.group + 1,
-            })?;
-            row[slot] = s.thermal_per_c;
+            group_row(&mut beta, s.group)?[slot] = s.thermal_per_c;
             count += 1;
         }
     }

@@ -238,23 +238,23 @@ impl Run {
         // `to_string`, not a `Value`: the Allan sums are 128-bit integers.
         self.line(source, &serde_json::to_string(&back).unwrap());
     }
-}
 
-impl Run {
     fn drain(&mut self) {
         while let Some(o) = self.p.poll() {
             self.h.output(&o);
             match &o {
-                Output::Telemetry(t) => self.telemetry_line("out", t),
+                Output::Telemetry(t) => {
+                    self.telemetry_line("out", t);
+                    match t {
+                        Telemetry::Health(_) => self.seen.health_reports += 1,
+                        Telemetry::Fused(_) => self.seen.fused_reports += 1,
+                        _ => {}
+                    }
+                }
                 Output::Fpga(c) => self.line("fpga", &format!("\"{c:?}\"")),
                 Output::PersistCalibration { tag } => {
                     self.line("persist", &format!("{{\"tag\":{tag}}}"));
                 }
-            }
-            match o {
-                Output::Telemetry(Telemetry::Health(_)) => self.seen.health_reports += 1,
-                Output::Telemetry(Telemetry::Fused(_)) => self.seen.fused_reports += 1,
-                _ => {}
             }
         }
     }

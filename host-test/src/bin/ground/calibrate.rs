@@ -234,23 +234,17 @@ const RAW_NAMES: [&str; 7] = [
 /// `--thermal`: the fit, a summary (or every channel with --verbose), the base with the terms added.
 fn run_thermal(a: &Args, rec: &std::path::Path) -> Result<()> {
     use host_test::calibrate::{self as cal, ThermalOptions};
-    use shared::calib::CalibrationTable;
     let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
     let bytes = std::fs::read(rec).with_context(|| format!("reading {}", rec.display()))?;
     let log = host_test::formats::framelog::FrameLog::decode(&bytes);
     if log.frames.is_empty() {
         bail!("{}: no valid frame", rec.display());
     }
-    let (mut file, base_name) = match &a.base {
-        Some(p) => (
-            cal::read_calibration::<16>(p).map_err(cerr)?,
-            p.display().to_string(),
-        ),
-        None => (
-            cal::CalibrationFile::from_table(&CalibrationTable::<16>::factory()),
-            "the factory table".to_string(),
-        ),
-    };
+    let mut file = base_file(a)?;
+    let base_name = a
+        .base
+        .as_ref()
+        .map_or("the factory table".to_string(), |p| p.display().to_string());
     // The base's biases hold at its reference temperature when it records one (thermal terms, or a non-zero
     // t_ref_c); the factory table records none.
     let base_t_ref = (a.base.is_some() && (file.thermal.is_some() || file.t_ref_c != 0.0))
