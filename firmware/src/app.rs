@@ -36,7 +36,7 @@ use embedded_storage::nor_flash::NorFlash;
 use shared::bus::csp::CspHeader;
 use shared::bus::{BusConfig, BusCounters, BusEvent, BusNode, MAX_PAYLOAD, MAX_WIRE_FRAME};
 use shared::calib::encoded_len_max;
-use shared::pipeline::{AllanBank, Output, Pipeline, PipelineConfig};
+use shared::pipeline::{Output, Pipeline, PipelineConfig, PipelineMemory};
 use shared::storage::{CalStore, StoreError};
 use shared::telemetry::{
     CalSource, FaultRecord, HousekeepingReport, RxErrorCounts, StoreOutcome, Telemetry,
@@ -244,7 +244,7 @@ pub const FW_COMMIT: (u32, bool) = (
 
 /// Everything the tasks share: the pipeline, the queues between the tasks, progress and counters.
 ///
-/// On the MCU one `App` lives in a `static` (`&'static App<&'static mut AllanBank>`); on the host each run builds
+/// On the MCU one `App` lives in a `static` (`&'static App<&'static mut PipelineMemory>`); on the host each run builds
 /// its own, so scenarios never share state.
 pub struct App<B> {
     /// The flight core.
@@ -272,14 +272,19 @@ pub struct App<B> {
     core_hz: AtomicU32,
 }
 
-impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
+impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
     /// The shared state of a node with bus configuration `bus`, around a new pipeline with `config`, the (empty)
-    /// Allan bank `bank` and the factory calibration (`load_calibration` replaces it, through `pipeline.get_mut()`
-    /// before the tasks start). `const`: the MCU builds its 14 KiB `App` at compile time in a `static`, never on the
+    /// large buffers `memory` ([`PipelineMemory`]) and the factory calibration (`load_calibration` replaces it, through `pipeline.get_mut()`
+    /// before the tasks start). `const`: the MCU builds its 15 KiB `App` at compile time in a `static`, never on the
     /// stack (`docs/firmware.md`, stack).
-    pub const fn new(config: PipelineConfig, bank: B, bus: BusConfig, platform: Platform) -> Self {
+    pub const fn new(
+        config: PipelineConfig,
+        memory: B,
+        bus: BusConfig,
+        platform: Platform,
+    ) -> Self {
         Self {
-            pipeline: Mutex::new(Pipeline::new(config, bank)),
+            pipeline: Mutex::new(Pipeline::new(config, memory)),
             bus,
             telemetry: Channel::new(),
             replies: Channel::new(),
@@ -406,7 +411,7 @@ impl<B: core::borrow::BorrowMut<AllanBank>> App<B> {
 /// resynchronises, so an error costs only the frames whose bytes it touched.
 pub async fn link_loop<B, R>(app: &App<B>, rx: &mut R) -> !
 where
-    B: core::borrow::BorrowMut<AllanBank>,
+    B: core::borrow::BorrowMut<PipelineMemory>,
     R: Read,
     R::Error: ClassifyRxError + Loggable,
 {
@@ -473,7 +478,7 @@ async fn drain<R: Read>(rx: &mut R, buf: &mut [u8]) -> usize {
 /// queue, waiting for room there; pings are answered the same way.
 pub async fn bus_rx_loop<B, R>(app: &App<B>, rx: &mut R) -> !
 where
-    B: core::borrow::BorrowMut<AllanBank>,
+    B: core::borrow::BorrowMut<PipelineMemory>,
     R: Read,
     R::Error: ClassifyRxError + Loggable,
 {
@@ -536,7 +541,7 @@ where
 /// dump, so dumps go exactly as fast as the bus drains. CSP packets in KISS frames.
 pub async fn bus_tx_loop<B, W>(app: &App<B>, tx: &mut W) -> !
 where
-    B: core::borrow::BorrowMut<AllanBank>,
+    B: core::borrow::BorrowMut<PipelineMemory>,
     W: Write,
     W::Error: Loggable,
 {
@@ -586,7 +591,7 @@ where
 /// a frame's tail), kept full (and counted) if frames still arrive after [`LINE_QUIET_WAIT`].
 pub async fn fpga_ctrl_loop<B, W>(app: &App<B>, tx: &mut W, clock: &mut impl CoreClock) -> !
 where
-    B: core::borrow::BorrowMut<AllanBank>,
+    B: core::borrow::BorrowMut<PipelineMemory>,
     W: Write,
     W::Error: Loggable,
 {
@@ -642,7 +647,7 @@ async fn line_quiet<B>(app: &App<B>) -> bool {
 }
 
 /// Loads the stored calibration into the pipeline (newest valid record, else the factory default).
-pub fn load_calibration<F: NorFlash, B: core::borrow::BorrowMut<AllanBank>>(
+pub fn load_calibration<F: NorFlash, B: core::borrow::BorrowMut<PipelineMemory>>(
     store: &mut CalStore<F>,
     pipeline: &mut Pipeline<B>,
 ) where
@@ -676,7 +681,7 @@ pub fn load_calibration<F: NorFlash, B: core::borrow::BorrowMut<AllanBank>>(
 /// wait in the bus's DMA ring.
 pub async fn storage_loop<B, F>(app: &App<B>, store: &mut CalStore<F>) -> !
 where
-    B: core::borrow::BorrowMut<AllanBank>,
+    B: core::borrow::BorrowMut<PipelineMemory>,
     F: NorFlash,
     F::Error: Loggable,
 {
@@ -766,7 +771,7 @@ pub trait PpsInput {
 /// the second or doubled are refused and counted; the counters go out with every periodic Health).
 pub async fn pps_loop<B>(app: &App<B>, pps: &mut impl PpsInput) -> !
 where
-    B: core::borrow::BorrowMut<AllanBank>,
+    B: core::borrow::BorrowMut<PipelineMemory>,
 {
     loop {
         let edge_us = pps.edge_us().await;
@@ -785,7 +790,7 @@ where
 /// human reading the log: micromath's root (≈ ±6 %), marked "≈", never sent — the ground gets exact variances.
 pub async fn housekeeping_loop<B>(app: &App<B>, log_every: u32) -> !
 where
-    B: core::borrow::BorrowMut<AllanBank>,
+    B: core::borrow::BorrowMut<PipelineMemory>,
 {
     let mut ticker = Ticker::every(HOUSEKEEPING_PERIOD);
     let mut last_frames = None;

@@ -47,7 +47,7 @@ use embassy_stm32::{bind_interrupts, dma, peripherals};
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
-use shared::pipeline::AllanBank;
+use shared::pipeline::PipelineMemory;
 use static_cell::{ConstStaticCell, StaticCell};
 
 use firmware::layout::{
@@ -191,77 +191,79 @@ pub fn start_watchdog() -> Watchdog {
     Watchdog(())
 }
 
-/// The Allan accumulators of all 102 channels (57.9 KB): in the 64 KiB core-coupled RAM, which only the CPU
-/// reaches (the bank is never a DMA buffer) and which nothing else uses, so that SRAM keeps its room for the stack.
-/// `.ccmram` is NOLOAD (`memory.x`): cortex-m-rt neither zeroes nor initialises it; [`AllanCcm`] zeroes it in place
+/// The pipeline's large buffers (60.4 KiB: the Allan accumulators of all 102 channels and the calibration upload's
+/// bytes): in the 64 KiB core-coupled RAM, which only the CPU reaches (neither is ever a DMA buffer) and which
+/// nothing else uses, so that SRAM keeps its room for the stack and the flash image of the tasks' state holds no
+/// zeros for them.
+/// `.ccmram` is NOLOAD (`memory.x`): cortex-m-rt neither zeroes nor initialises it; [`MemoryCcm`] zeroes it in place
 /// before its first borrow.
-#[allow(unsafe_code)] // the link section, and the accesses in `AllanCcm` (SAFETY notes there)
-#[unsafe(link_section = ".ccmram.ALLAN")]
-static mut ALLAN: core::mem::MaybeUninit<AllanBank> = core::mem::MaybeUninit::uninit();
-static ALLAN_READY: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
+#[allow(unsafe_code)] // the link section, and the accesses in `MemoryCcm` (SAFETY notes there)
+#[unsafe(link_section = ".ccmram.MEMORY")]
+static mut MEMORY: core::mem::MaybeUninit<PipelineMemory> = core::mem::MaybeUninit::uninit();
+static MEMORY_READY: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 
-/// Zeroes the Allan bank in CCM RAM, in place, once (later calls do nothing).
-fn init_allan_ccm() {
+/// Zeroes the pipeline memory in CCM RAM, in place, once (later calls do nothing).
+fn init_memory_ccm() {
     use core::sync::atomic::Ordering;
-    if ALLAN_READY.load(Ordering::Acquire) {
+    if MEMORY_READY.load(Ordering::Acquire) {
         return;
     }
     #[allow(unsafe_code)]
-    // SAFETY: no reference to ALLAN exists yet: the only handle (`AllanCcm`) calls this before its first borrow and
-    // borrows only once ALLAN_READY is set below. Every bit pattern of the bank's fields is
-    // valid (it holds only integers: `AllanSet` is counts, sums and previous values), and all-zero is its empty
-    // state (`AllanBank::new()`).
+    // SAFETY: no reference to MEMORY exists yet: the only handle (`MemoryCcm`) calls this before its first borrow and
+    // borrows only once MEMORY_READY is set below. Every bit pattern of the memory's fields is
+    // valid (it holds only integers: `AllanSet` is counts, sums and previous values; the upload is bytes), and
+    // all-zero is its empty state (`PipelineMemory::new()`).
     unsafe {
-        core::ptr::addr_of_mut!(ALLAN)
-            .cast::<AllanBank>()
+        core::ptr::addr_of_mut!(MEMORY)
+            .cast::<PipelineMemory>()
             .write_bytes(0, 1)
     };
-    ALLAN_READY.store(true, Ordering::Release);
+    MEMORY_READY.store(true, Ordering::Release);
 }
 
-/// The Allan bank in CCM RAM, as the pipeline holds it (`Pipeline<AllanCcm>`): a handle, so that the whole `App`
+/// The pipeline memory in CCM RAM, as the pipeline holds it (`Pipeline<MemoryCcm>`): a handle, so that the whole `App`
 /// can be built at compile time (a `const` cannot hold a `&'static mut`). There is one, in `main.rs`'s `APP`.
-pub struct AllanCcm(());
+pub struct MemoryCcm(());
 
-impl AllanCcm {
+impl MemoryCcm {
     /// The handle.
     ///
     /// # Safety
-    /// At most one may exist: it hands out `&mut` to the one bank. (It zeroes the bank itself before its first
+    /// At most one may exist: it hands out `&mut` to the one memory. (It zeroes the memory itself before its first
     /// borrow.)
     #[allow(unsafe_code)]
     pub const unsafe fn new() -> Self {
         Self(())
     }
 
-    fn bank(&self) -> *mut AllanBank {
-        // Never a borrow of uninitialised memory: the first access zeroes the bank (at boot, the calibration load's
+    fn memory(&self) -> *mut PipelineMemory {
+        // Never a borrow of uninitialised memory: the first access zeroes the memory (at boot, the calibration load's
         // reset of the statistics); after it, one load per Allan access (once per frame).
-        if !ALLAN_READY.load(core::sync::atomic::Ordering::Acquire) {
-            init_allan_ccm();
+        if !MEMORY_READY.load(core::sync::atomic::Ordering::Acquire) {
+            init_memory_ccm();
         }
-        core::ptr::addr_of_mut!(ALLAN).cast::<AllanBank>()
+        core::ptr::addr_of_mut!(MEMORY).cast::<PipelineMemory>()
     }
 }
 
-impl core::borrow::Borrow<AllanBank> for AllanCcm {
-    fn borrow(&self) -> &AllanBank {
+impl core::borrow::Borrow<PipelineMemory> for MemoryCcm {
+    fn borrow(&self) -> &PipelineMemory {
         #[allow(unsafe_code)]
-        // SAFETY: initialised (`bank`); the one handle's `&self` borrow lives no longer than `&self`, and no `&mut`
+        // SAFETY: initialised (`memory`); the one handle's `&self` borrow lives no longer than `&self`, and no `&mut`
         // can coexist with it (that needs `&mut self` of the same unique handle).
         unsafe {
-            &*self.bank()
+            &*self.memory()
         }
     }
 }
 
-impl core::borrow::BorrowMut<AllanBank> for AllanCcm {
-    fn borrow_mut(&mut self) -> &mut AllanBank {
+impl core::borrow::BorrowMut<PipelineMemory> for MemoryCcm {
+    fn borrow_mut(&mut self) -> &mut PipelineMemory {
         #[allow(unsafe_code)]
-        // SAFETY: initialised (`bank`); the borrow is tied to `&mut self` of the unique handle, so it is the only
-        // reference to the bank while it lives.
+        // SAFETY: initialised (`memory`); the borrow is tied to `&mut self` of the unique handle, so it is the only
+        // reference to the memory while it lives.
         unsafe {
-            &mut *self.bank()
+            &mut *self.memory()
         }
     }
 }

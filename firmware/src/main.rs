@@ -20,8 +20,8 @@ use defmt_rtt as _;
 #[cfg(debug_assertions)]
 use panic_probe as _;
 
-/// The tasks' shared state, as the MCU holds it: the Allan bank in CCM RAM.
-type FwApp = App<board::AllanCcm>;
+/// The tasks' shared state, as the MCU holds it: the pipeline memory (Allan accumulators, upload bytes) in CCM RAM.
+type FwApp = App<board::MemoryCcm>;
 
 /// Release builds reset on a panic (after logging it and recording it for the next boot's housekeeping); the core
 /// never panics on input, so this is a last resort.
@@ -39,12 +39,12 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     cortex_m::peripheral::SCB::sys_reset()
 }
 
-/// The whole state of the tasks (14 KiB), built at compile time (`.data`): never on the stack.
-#[allow(unsafe_code)] // `AllanCcm::new`
+/// The whole state of the tasks (15 KiB), built at compile time (`.data`): never on the stack.
+#[allow(unsafe_code)] // `MemoryCcm::new`
 static APP: ConstStaticCell<FwApp> = ConstStaticCell::new(App::new(
     PipelineConfig::DEFAULT,
-    // SAFETY: the only handle (it zeroes the bank before its first borrow).
-    unsafe { board::AllanCcm::new() },
+    // SAFETY: the only handle (it zeroes the memory before its first borrow).
+    unsafe { board::MemoryCcm::new() },
     BusConfig::DEFAULT,
     app::Platform::NONE,
 ));
@@ -66,7 +66,7 @@ async fn main(spawner: Spawner) {
         boot.fault
     );
 
-    // The state was built at compile time (`APP`); the Allan bank is zeroed in place in CCM RAM on its first use: no
+    // The state was built at compile time (`APP`); the pipeline memory is zeroed in place in CCM RAM on its first use: no
     // large frame on the stack (`docs/firmware.md`, stack; the CI's stack check and boot test hold it to that).
     let app = APP.take();
     app.set_platform(app::Platform {

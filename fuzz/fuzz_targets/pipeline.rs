@@ -25,7 +25,7 @@ use libfuzzer_sys::fuzz_target;
 use shared::calib::{CalibrationTable, encoded_len_max};
 use shared::crc::crc32c;
 use shared::fuse::FusionMode;
-use shared::pipeline::{AllanBank, Output, Pipeline, PipelineConfig};
+use shared::pipeline::{PipelineMemory, Output, Pipeline, PipelineConfig};
 use shared::telemetry::{
     self, Ack, CAL_CHUNK_MAX, CalSource, Command, CommandEnvelope, MAX_MESSAGE_LEN, Telemetry,
 };
@@ -132,7 +132,7 @@ impl Input {
 }
 
 struct Run {
-    p: Pipeline<Box<AllanBank>>,
+    p: Pipeline<Box<PipelineMemory>>,
     last: [u64; 12],
 }
 
@@ -228,7 +228,7 @@ fn check(input: Input) {
         health_every: u16::from(input.health_every % 4),
         ..PipelineConfig::DEFAULT
     };
-    let mut run = Run { p: Pipeline::new(config, Box::new(AllanBank::new())), last: [0; 12] };
+    let mut run = Run { p: Pipeline::new(config, Box::new(PipelineMemory::new())), last: [0; 12] };
     for op in input.ops.iter().take(64) {
         match op {
             Op::Link(b) => run.push_link(b),

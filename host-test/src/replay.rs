@@ -11,18 +11,18 @@ use crate::formats::framelog::FrameLog;
 use shared::bus::{BusConfig, BusNode, MAX_WIRE_FRAME};
 use shared::calib::{AXES, CalibrationTable, FRAC_BITS, GroupCal, GroupThermal, RawCounts};
 use shared::fuse::FusionMode;
-use shared::pipeline::{ALLAN_CHANNELS, AllanBank, Output, Pipeline, PipelineConfig};
+use shared::pipeline::{ALLAN_CHANNELS, Output, Pipeline, PipelineConfig, PipelineMemory};
 use shared::telemetry::{Command, CommandEnvelope, Telemetry, encode};
 use shared::wire::frame::GROUPS;
 use shared::wire::{FpgaControl, LinkCounters};
 
 /// The host's pipeline.
-pub type HostPipeline = Pipeline<Box<AllanBank>>;
+pub type HostPipeline = Pipeline<Box<PipelineMemory>>;
 
 /// A host pipeline with `config` and `cal`: the factory table as the MCU boots with it (source `Factory`), any
 /// other as an upload (`Uploaded`), so that Health says what the MCU's would.
 pub fn host_pipeline(config: PipelineConfig, cal: CalibrationTable<GROUPS>) -> HostPipeline {
-    let mut p = Pipeline::new(config, Box::new(AllanBank::new()));
+    let mut p = Pipeline::new(config, Box::new(PipelineMemory::new()));
     if cal != CalibrationTable::factory() {
         p.load_calibration(&cal, shared::telemetry::CalSource::Uploaded);
     }

@@ -15,7 +15,7 @@ use shared::bench::BenchFrames;
 use shared::calib::{AXES, CalibrationTable, RawCounts};
 use shared::fuse::{FusedSample, Fusion, FusionConfig, FusionMode};
 use shared::nav::NavIntegrator;
-use shared::pipeline::{AllanBank, Pipeline, PipelineConfig};
+use shared::pipeline::{PipelineMemory, Pipeline, PipelineConfig};
 use shared::wire::frame::{FRAME_LEN, GROUPS};
 use shared::wire::{Frame, FrameDecoder};
 
@@ -68,7 +68,7 @@ fn main() -> ! {
         );
         exit(false);
     }
-    let Some(bank) = cortex_m::singleton!(: AllanBank = AllanBank::new()) else {
+    let Some(bank) = cortex_m::singleton!(: PipelineMemory = PipelineMemory::new()) else {
         exit(false);
     };
     let paper = {
@@ -141,10 +141,10 @@ fn count(
     config: PipelineConfig,
     table: Option<&CalibrationTable<GROUPS>>,
     temperature: Temperature,
-    bank: &mut AllanBank,
+    bank: &mut PipelineMemory,
 ) {
     // Each configuration starts from an empty bank (`Pipeline::new` takes it as it is).
-    bank.0.reset();
+    bank.allan.reset();
     let mut pipeline = Pipeline::new(config, &mut *bank);
     if let Some(table) = table {
         pipeline.load_calibration(table, shared::telemetry::CalSource::Uploaded);
@@ -152,7 +152,7 @@ fn count(
     let mut frames = BenchFrames::new();
     let mut temp_cdeg: i16 = 2_000;
     let mut batch = [0u8; FRAME_LEN * BATCH];
-    let run = |pipeline: &mut Pipeline<&mut AllanBank>, batch: &[u8]| {
+    let run = |pipeline: &mut Pipeline<&mut PipelineMemory>, batch: &[u8]| {
         let mut input = batch;
         while !input.is_empty() {
             pipeline.push_link(&mut input);
@@ -216,7 +216,7 @@ fn count(
 /// count: link decoding with the CRC, ADC codes to signed counts, the 16 groups' calibration, the fusion, the 102 Allan
 /// channels, the navigation increments. Their sum is below the pipeline's by what `Pipeline` adds (output averaging,
 /// health, bookkeeping).
-fn stages(bank: &mut AllanBank) {
+fn stages(bank: &mut PipelineMemory) {
     const NAMES: [&str; 6] = [
         "decode + CRC",
         "ADC codes to signed counts",
@@ -232,7 +232,7 @@ fn stages(bank: &mut AllanBank) {
     let cal = CalibrationTable::<GROUPS>::factory();
     let mut decoder = FrameDecoder::new();
     let mut fusion = Fusion::<GROUPS>::new(FusionConfig::DEFAULT);
-    bank.0.reset();
+    bank.allan.reset();
     let mut frames = BenchFrames::new();
     let mut bytes = [0u8; FRAME_LEN * BATCH];
     let mut heads = [(0u16, None::<i16>); BATCH];
@@ -280,7 +280,7 @@ fn stages(bank: &mut AllanBank) {
             }),
             ticks_between(|| {
                 for (a, f) in axes.iter().zip(&fused) {
-                    core::hint::black_box(bank.0.push_parts(a.as_flattened(), f));
+                    core::hint::black_box(bank.allan.push_parts(a.as_flattened(), f));
                 }
             }),
             ticks_between(|| {

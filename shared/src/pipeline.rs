@@ -122,26 +122,34 @@ struct FrameScratch {
     axes: [[i32; AXES]; GROUPS],
 }
 
-/// The Allan accumulators of all channels (57 944 B: 102 channels × 568 B + 8; all zero when new). The MCU keeps it
-/// in CCM RAM, zeroed in place at boot (`firmware/src/board.rs`); the host on the heap.
-pub struct AllanBank(pub AllanSet<ALLAN_CHANNELS>);
+/// The pipeline's large buffers, kept outside its struct (61 816 B, all zero when new): the MCU keeps them in CCM
+/// RAM, zeroed in place at boot (`firmware/src/board.rs`), neither in the flash image of the tasks' state nor on a
+/// stack; the host on the heap.
+pub struct PipelineMemory {
+    /// The Allan accumulators of all channels (57 944 B: 102 channels × 568 B + 8).
+    pub allan: AllanSet<ALLAN_CHANNELS>,
+    /// The bytes of the calibration upload in progress (`CalBegin`, `CalChunk`, `CalCommit`).
+    upload: [u8; CAL_UPLOAD_MAX],
+}
 
-impl AllanBank {
-    /// All accumulators empty.
+impl PipelineMemory {
+    /// All accumulators empty, no upload.
     pub const fn new() -> Self {
-        Self(AllanSet::new())
+        Self {
+            allan: AllanSet::new(),
+            upload: [0; CAL_UPLOAD_MAX],
+        }
     }
 }
 
-impl Default for AllanBank {
+impl Default for PipelineMemory {
     fn default() -> Self {
         Self::new()
     }
 }
 
-/// The on-board pipeline (see module docs). The Allan bank `B` is held by anything that borrows an [`AllanBank`]
-/// mutably (`&'static mut AllanBank` on the MCU, `Box<AllanBank>` on the host), so that the rest (about 7 KiB) can
-/// be built on the stack.
+/// The on-board pipeline (see module docs). Its large buffers `B` are held by anything that borrows a
+/// [`PipelineMemory`] mutably (a handle to CCM RAM on the MCU, `Box<PipelineMemory>` on the host).
 pub struct Pipeline<B> {
     config: PipelineConfig,
     /// Link bytes to frames, and frames to time.
@@ -149,7 +157,7 @@ pub struct Pipeline<B> {
     /// The table in force, its thermal compensation and the upload of the next.
     cal: Calibration,
     fusion: Fusion<GROUPS>,
-    allan: B,
+    memory: B,
     fused_hold: [i32; AXES],
     /// The frame in work: every field is written before it is read, each frame (kept here rather than zeroed on the
     /// stack each frame: −0.3 k Cortex-M4 instructions per frame).
@@ -171,20 +179,20 @@ pub struct Pipeline<B> {
     commands: [u32; 2],
 }
 
-impl<B: BorrowMut<AllanBank>> Pipeline<B> {
-    /// A pipeline with the factory calibration over `bank`, taken as it is: pass an empty one
-    /// ([`AllanBank::new`]; [`Self::load_calibration`] and `AllanReset` empty it in place).
+impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
+    /// A pipeline with the factory calibration over `memory`, taken as it is: pass an empty one
+    /// ([`PipelineMemory::new`]; [`Self::load_calibration`] and `AllanReset` empty its Allan part in place).
     ///
     /// `const`, so that the MCU builds its whole state at compile time, where it lives (a `static`), instead of on
     /// a stack that cannot hold it: LLVM does not build a large value in place through a `StaticCell` (measured:
     /// an 11 KiB frame in `new`, 24 KiB in the firmware's `App::new`).
-    pub const fn new(config: PipelineConfig, bank: B) -> Self {
+    pub const fn new(config: PipelineConfig, memory: B) -> Self {
         Self {
             config,
             intake: Intake::NEW,
             cal: Calibration::NEW,
             fusion: Fusion::new(config.fusion),
-            allan: bank,
+            memory,
             fused_hold: [0; AXES],
             scratch: FrameScratch {
                 raw: [RawCounts::ZERO; GROUPS],
@@ -321,7 +329,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
 
     /// The Allan accumulators (channels: see [`SENSOR_CHANNELS`], [`FUSED_CHANNEL0`]).
     pub fn allan(&self) -> &AllanSet<ALLAN_CHANNELS> {
-        &self.allan.borrow().0
+        &self.memory.borrow().allan
     }
 
     /// Sample interval of the Allan accumulators, ps (`None` before the first frame).
@@ -377,7 +385,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     pub fn poll_dump(&mut self) -> Option<Telemetry> {
         let tau0_ps = self.tau0_ps().unwrap_or(0);
         self.cursor
-            .next(&self.fusion, &self.allan.borrow().0, tau0_ps)
+            .next(&self.fusion, &self.memory.borrow().allan, tau0_ps)
     }
 
     fn push(&mut self, o: Output) {
@@ -387,7 +395,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
     }
 
     fn restart_statistics(&mut self) {
-        self.allan.borrow_mut().0.reset();
+        self.memory.borrow_mut().allan.reset();
         self.avg = Averager::NEW;
         self.nav = NavStage::NEW;
     }
@@ -427,9 +435,9 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
         // Allan channels: the sensors' axes, then the fused axes (holding the last valid value).
         // 96 + 6 = ALLAN_CHANNELS values: always taken (until the accumulators' sample limit).
         let _ = self
-            .allan
+            .memory
             .borrow_mut()
-            .0
+            .allan
             .push_parts(self.scratch.axes.as_flattened(), &self.fused_hold);
 
         self.time.frame(t_us, self.intake.arrival_us());

@@ -25,7 +25,7 @@ use firmware::sim::flash::{FileFlash, Stalling};
 use firmware::sim::node::{self, Board};
 use shared::bus::BusConfig;
 use shared::bus::csp::CspVersion;
-use shared::pipeline::{AllanBank, PipelineConfig};
+use shared::pipeline::{PipelineConfig, PipelineMemory};
 use shared::storage::CalStore;
 use shared::wire::FrameDecoder;
 
@@ -109,7 +109,7 @@ fn run(args: &Args) -> Result<(), String> {
     };
     let mut app = App::new(
         config,
-        Box::new(AllanBank::new()),
+        Box::new(PipelineMemory::new()),
         bus_config,
         app::Platform::default(),
     );

@@ -9,7 +9,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_storage::nor_flash::NorFlash;
-use shared::pipeline::AllanBank;
+use shared::pipeline::PipelineMemory;
 use shared::storage::CalStore;
 use shared::wire::FrameClock;
 use shared::wire::frame::FRAME_LEN;
@@ -131,7 +131,7 @@ impl Default for Board {
 /// Every firmware loop over `board` and `store`, joined (never returns: drop it to stop the firmware).
 pub async fn tasks<B, F>(app: &App<B>, board: &Board, store: &mut CalStore<F>)
 where
-    B: core::borrow::BorrowMut<AllanBank>,
+    B: core::borrow::BorrowMut<PipelineMemory>,
     F: NorFlash,
     F::Error: Loggable,
 {

@@ -22,7 +22,7 @@ use shared::bus::kiss::KissDecoder;
 use shared::bus::{BusConfig, MAX_WIRE_FRAME};
 use shared::calib::CalibrationTable;
 use shared::crc::crc32c;
-use shared::pipeline::{AllanBank, PipelineConfig};
+use shared::pipeline::{PipelineConfig, PipelineMemory};
 use shared::storage::CalStore;
 use shared::telemetry::{
     CAL_CHUNK_MAX, Command, CommandEnvelope, MAX_MESSAGE_LEN, Telemetry, decode, encode,
@@ -30,7 +30,7 @@ use shared::telemetry::{
 use shared::wire::frame::GROUPS;
 
 /// The firmware's shared state on the host.
-pub type HostApp = App<Box<AllanBank>>;
+pub type HostApp = App<Box<PipelineMemory>>;
 
 /// The simulated satellite: the tasks' state, the board's lines, the calibration flash.
 pub struct Sat {
@@ -60,7 +60,7 @@ impl Sat {
     ) -> Self {
         let mut app = App::new(
             config,
-            Box::new(AllanBank::new()),
+            Box::new(PipelineMemory::new()),
             BusConfig::DEFAULT,
             platform,
         );

@@ -26,10 +26,10 @@ enum CalCheck {
     Loaded(Option<u32>),
 }
 
-/// An upload in progress: the bytes received so far of an encoded table of announced length and CRC-32C.
+/// An upload in progress: how many bytes of an encoded table of announced length and CRC-32C have been received
+/// (the bytes themselves go to [`super::PipelineMemory`], outside the pipeline).
 #[derive(Clone, Copy, Debug)]
 struct Upload {
-    buf: [u8; CAL_UPLOAD_MAX],
     len: u16,
     crc: u32,
     received: u16,
@@ -58,7 +58,6 @@ impl Calibration {
         check: CalCheck::Factory,
         thermal: ThermalComp::new(),
         upload: Upload {
-            buf: [0; CAL_UPLOAD_MAX],
             len: 0,
             crc: 0,
             received: 0,
@@ -95,13 +94,17 @@ impl Calibration {
             crc,
             received: 0,
             active: true,
-            ..self.upload
         };
         Ok(())
     }
 
-    /// `CalChunk`: the bytes at `offset`, which must follow the last chunk.
-    pub(super) fn chunk(&mut self, offset: u16, data: &[u8]) -> Result<(), Reject> {
+    /// `CalChunk`: the bytes at `offset`, which must follow the last chunk, into `buf`.
+    pub(super) fn chunk(
+        &mut self,
+        buf: &mut [u8; CAL_UPLOAD_MAX],
+        offset: u16,
+        data: &[u8],
+    ) -> Result<(), Reject> {
         let u = &mut self.upload;
         if !u.active {
             return Err(Reject::CalNotStarted);
@@ -113,26 +116,22 @@ impl Calibration {
             .checked_add(data.len())
             .filter(|&end| end <= usize::from(u.len))
             .ok_or(Reject::CalOverflow)?;
-        u.buf
-            .get_mut(usize::from(offset)..end)
+        buf.get_mut(usize::from(offset)..end)
             .ok_or(Reject::CalOverflow)?
             .copy_from_slice(data);
         u.received = end as u16;
         Ok(())
     }
 
-    /// `CalCommit`: the upload complete and its CRC right, the table decoded into the one in force, in place (no
+    /// `CalCommit`: the upload in `buf` complete and its CRC right, the table decoded into the one in force, in place (no
     /// table-sized temporary on the bus task's stack); on any error the table in force stays. The caller then
     /// calls [`Self::changed`] through the pipeline (statistics, fusion mode).
-    pub(super) fn commit(&mut self) -> Result<(), Reject> {
+    pub(super) fn commit(&mut self, buf: &[u8; CAL_UPLOAD_MAX]) -> Result<(), Reject> {
         let u = &self.upload;
         if !u.active {
             return Err(Reject::CalNotStarted);
         }
-        let bytes = u
-            .buf
-            .get(..usize::from(u.len))
-            .ok_or(Reject::CalIncomplete)?;
+        let bytes = buf.get(..usize::from(u.len)).ok_or(Reject::CalIncomplete)?;
         if u.received != u.len || crc32c(bytes) != u.crc {
             return Err(Reject::CalIncomplete);
         }

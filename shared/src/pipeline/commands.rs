@@ -1,7 +1,7 @@
 //! The command interpreter: one command message in, its ack (and any data) out through the outbox; the upload
 //! commit's ack waits for the platform's store.
 
-use super::{AllanBank, Averager, GROUPS, MAX_FRAMES_PER_OUTPUT, Output, Pipeline};
+use super::{Averager, GROUPS, MAX_FRAMES_PER_OUTPUT, Output, Pipeline, PipelineMemory};
 use crate::fuse::{FusionConfig, FusionMode};
 use crate::telemetry::{
     Ack, CalSource, Command, CommandEnvelope, DecodeError, Mode, Reject, Telemetry, decode,
@@ -10,7 +10,7 @@ use crate::telemetry::{
 use crate::wire::FpgaControl;
 use core::borrow::BorrowMut;
 
-impl<B: BorrowMut<AllanBank>> Pipeline<B> {
+impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
     /// Handles one command message (the payload of a bus packet); the ack (and any data) follow in `poll`.
     pub fn handle_command(&mut self, bytes: &[u8]) {
         let tag = peek_tag(bytes);
@@ -101,13 +101,16 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
                 });
             }
             Command::CalBegin { len, crc } => self.cal.begin(len, crc)?,
-            Command::CalChunk { offset, data } => self.cal.chunk(offset, &data)?,
+            Command::CalChunk { offset, data } => {
+                self.cal
+                    .chunk(&mut self.memory.borrow_mut().upload, offset, &data)?
+            }
             Command::CalCommit => {
-                self.cal.commit()?;
+                self.cal.commit(&self.memory.borrow().upload)?;
                 self.calibration_changed(CalSource::Uploaded);
             }
             Command::AllanRequest { first, count } => self.cursor.start_allan(first, count)?,
-            Command::AllanReset => self.allan.borrow_mut().0.reset(),
+            Command::AllanReset => self.memory.borrow_mut().allan.reset(),
             Command::HealthRequest { detail } => {
                 let h = self.health();
                 self.push(Output::Telemetry(Telemetry::Health(h)));

@@ -1,11 +1,11 @@
 //! Health: the report of the core's counters, periodic and on request.
 
-use super::{AllanBank, GROUPS, Pipeline};
+use super::{GROUPS, Pipeline, PipelineMemory};
 use crate::fuse::FaultCounts;
 use crate::telemetry::HealthReport;
 use core::borrow::BorrowMut;
 
-impl<B: BorrowMut<AllanBank>> Pipeline<B> {
+impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
     /// A health report now.
     pub fn health(&self) -> HealthReport {
         let mut faults = [FaultCounts::default(); 2];
@@ -29,7 +29,7 @@ impl<B: BorrowMut<AllanBank>> Pipeline<B> {
             robust: fusion.robust,
             faults,
             invalid_frames: self.invalid_frames,
-            allan_samples: self.allan.borrow().0.samples(),
+            allan_samples: self.memory.borrow().allan.samples(),
             telemetry_dropped: self.telemetry_dropped,
             commands: self.commands,
             temp: self.cal.thermal.counts(),

@@ -2,7 +2,7 @@
 //! ([`crate::nav::NavIntegrator`], sent as [`NavReport`] after every `Fused` report).
 
 use super::intake::Intake;
-use super::{AllanBank, Output, Pipeline};
+use super::{Output, Pipeline, PipelineMemory};
 use crate::fuse::FusedSample;
 use crate::nav::NavIntegrator;
 use crate::telemetry::NavReport;
@@ -77,7 +77,7 @@ impl NavStage {
     }
 }
 
-impl<B: BorrowMut<AllanBank>> Pipeline<B> {
+impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
     /// One frame into the navigation increments (see [`NavStage::add_frame`]).
     pub(super) fn integrate(&mut self, decimation: u16, missing: u32, base_ticks: u64) {
         let dt_s = f32::from(decimation) + 1.0;

@@ -44,11 +44,11 @@ fn stream(frames: &[FrameRepr]) -> Vec<u8> {
     frames.iter().flat_map(FrameRepr::to_bytes).collect()
 }
 
-type HostPipeline = Pipeline<std::boxed::Box<AllanBank>>;
+type HostPipeline = Pipeline<std::boxed::Box<PipelineMemory>>;
 
 impl HostPipeline {
     fn new_boxed(config: PipelineConfig) -> Self {
-        Pipeline::new(config, std::boxed::Box::new(AllanBank::new()))
+        Pipeline::new(config, std::boxed::Box::new(PipelineMemory::new()))
     }
 }
 

@@ -1,7 +1,7 @@
 //! Frame time and spacecraft time: the epoch `SetTime` sets, PPS edges that re-anchor it on the whole second, and
 //! the reports of both.
 
-use super::{AllanBank, Pipeline};
+use super::{Pipeline, PipelineMemory};
 use crate::telemetry::{PpsReport, TimeReport};
 use core::borrow::BorrowMut;
 
@@ -124,7 +124,7 @@ impl TimeSync {
     }
 }
 
-impl<B: BorrowMut<AllanBank>> Pipeline<B> {
+impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
     /// A PPS edge at `edge_us` on the arrival clock ([`Self::set_arrival_us`]'s): the spacecraft's whole second
     /// (see [`TimeSync::pps`]). Returns the correction, µs; `None` if the edge was refused (counted).
     pub fn pps(&mut self, edge_us: u64) -> Option<i64> {

@@ -18,7 +18,7 @@ use rand_xoshiro::rand_core::{Rng as _, SeedableRng};
 use serde::Serialize;
 use shared::calib::{AXES, CalibrationTable, GroupCal, board};
 use shared::fuse::{FusedSample, FusionConfig, FusionMode};
-use shared::pipeline::{ALLAN_CHANNELS, AllanBank, Output, Pipeline, PipelineConfig};
+use shared::pipeline::{ALLAN_CHANNELS, Output, Pipeline, PipelineConfig, PipelineMemory};
 use shared::telemetry::{CalSource, Command, CommandEnvelope, Telemetry, encode};
 use shared::wire::FrameRepr;
 use shared::wire::frame::{
@@ -26,7 +26,7 @@ use shared::wire::frame::{
     RAW_PER_GROUP,
 };
 
-type HostPipeline = Pipeline<Box<AllanBank>>;
+type HostPipeline = Pipeline<Box<PipelineMemory>>;
 type Rng = SplitMix64;
 
 /// FNV-1a, 64 bit: a hash whose value is fixed by its definition (unlike `DefaultHasher`).
@@ -318,7 +318,7 @@ impl Run {
 /// Runs `n` frames with `config`; returns the hash and the JSON lines.
 fn golden_run(config: PipelineConfig, n: usize, seed: u64) -> (u64, Vec<String>) {
     let mut r = Run {
-        p: Pipeline::new(config, Box::new(AllanBank::new())),
+        p: Pipeline::new(config, Box::new(PipelineMemory::new())),
         h: Fnv::new(),
         seen: Seen::default(),
         frame: 0,
