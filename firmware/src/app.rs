@@ -503,26 +503,14 @@ where
         while let Some(event) = node.receive(&mut input) {
             match event {
                 BusEvent::Command(payload) => {
-                    // The outbox is emptied first (frame outputs, routed as usual), so that everything in it after
-                    // `handle_command` is this command's: its ack first, then any report it asked for.
-                    let mut replies = heapless::Vec::<Telemetry, 2>::new();
-                    {
-                        let mut p = app.pipeline.lock().await;
-                        app.route_all(&mut p);
-                        p.handle_command(payload);
-                        while let Some(o) = p.poll() {
-                            match o {
-                                Output::Telemetry(t) => {
-                                    if let Err(t) = replies.push(t) {
-                                        app.route(&mut p, Output::Telemetry(t));
-                                    }
-                                }
-                                other => app.route(&mut p, other),
-                            }
+                    // The replies come back from the call (ack first): telemetry waits for room in the reply
+                    // queue, the rest is routed at once.
+                    let replies = app.pipeline.lock().await.handle_command(payload);
+                    for o in replies {
+                        match o {
+                            Output::Telemetry(t) => app.replies.send(BusOut::Telemetry(t)).await,
+                            other => app.route(&mut *app.pipeline.lock().await, other),
                         }
-                    }
-                    for t in replies {
-                        app.replies.send(BusOut::Telemetry(t)).await;
                     }
                 }
                 BusEvent::Ping { header, payload } => {

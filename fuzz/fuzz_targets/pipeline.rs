@@ -8,10 +8,10 @@
 //! * the link counters and the health report's counters (commands accepted/refused, invalid frames, dropped
 //!   telemetry) never decrease (no wrap is reachable in one run);
 //! * every PPS edge is counted once, as accepted or refused;
-//! * every command is acknowledged: an ack with its tag is queued before anything else it produced (a commit's
-//!   after the platform's store);
+//! * every command is acknowledged: the call returns an ack with its tag before anything else it produced (a
+//!   commit's comes after the platform's store);
 //! * a complete, correct upload of a valid table is accepted: the table is in force, its source is `Uploaded`
-//!   and `PersistCalibration` is queued (alone: the commit's ack waits for the store); a corrupted one leaves the
+//!   and `PersistCalibration` is returned (alone: the commit's ack waits for the store); a corrupted one leaves the
 //!   calibration unchanged;
 //! * every queued telemetry message encodes within `MAX_MESSAGE_LEN` and decodes back to itself.
 #![no_main]
@@ -189,10 +189,14 @@ impl Run {
 
     /// Sends a command and checks that the first output is its ack; returns the ack's result and the outputs.
     fn command(&mut self, bytes: &[u8], tag: Option<u16>) -> (Ack, Vec<Output>) {
-        // Empty the outbox first so that the ack is the first output.
-        while self.p.poll().is_some() {}
-        self.p.handle_command(bytes);
-        let out = self.drain(255);
+        let out: Vec<Output> = self.p.handle_command(bytes).to_vec();
+        for o in &out {
+            if let Output::Telemetry(t) = o {
+                let mut buf = [0u8; MAX_MESSAGE_LEN];
+                let enc = telemetry::encode(t, &mut buf).expect("telemetry fits MAX_MESSAGE_LEN");
+                assert_eq!(telemetry::decode::<Telemetry>(enc), Ok(*t));
+            }
+        }
         let ack = match out.first().copied() {
             Some(Output::Telemetry(Telemetry::Ack(ack))) => ack,
             // A commit: its ack waits for the platform's store, which succeeds here.

@@ -191,7 +191,9 @@ impl HostCore {
     pub fn command(&mut self, tag: u16, cmd: Command) {
         let mut buf = [0u8; 64];
         if let Ok(msg) = encode(&CommandEnvelope { tag, cmd }, &mut buf) {
-            self.pipeline.handle_command(msg);
+            for o in self.pipeline.handle_command(msg) {
+                self.take(o);
+            }
         }
         self.poll();
         while let Some(t) = self.pipeline.poll_dump() {

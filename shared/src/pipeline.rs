@@ -92,7 +92,8 @@ impl PipelineConfig {
     }
 }
 
-/// Something the platform must do. (Dumps come from [`Pipeline::poll_dump`].)
+/// Something the platform must do: from [`Pipeline::poll`] (frames, PPS) or [`Pipeline::handle_command`]. (Dumps
+/// come from [`Pipeline::poll_dump`].)
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Output {
     /// Send on the bus.
@@ -374,7 +375,8 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
         }
     }
 
-    /// The next queued output (telemetry of frames and commands, FPGA control, persist), if any.
+    /// The next queued output, if any: what the frames produced (fused, navigation and periodic health reports)
+    /// and the time reports of a PPS edge. A command's replies are returned by [`Self::handle_command`] instead.
     pub fn poll(&mut self) -> Option<Output> {
         self.outbox.pop_front()
     }
@@ -470,12 +472,18 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
     /// A [`TimeReport`] after the time was set: the last frame's time on both scales; and the PPS counters once an
     /// edge was seen.
     fn push_time(&mut self) {
-        if let Some(r) = self.time_report() {
-            self.push(Output::Telemetry(Telemetry::Time(r)));
+        let [time, pps] = self.time_reports();
+        for t in [time, pps].into_iter().flatten() {
+            self.push(Output::Telemetry(t));
         }
-        if let Some(pps) = self.time.pps_seen() {
-            self.push(Output::Telemetry(Telemetry::Pps(pps)));
-        }
+    }
+
+    /// The time report and, when a PPS edge was seen, the PPS report.
+    fn time_reports(&self) -> [Option<Telemetry>; 2] {
+        [
+            self.time_report().map(Telemetry::Time),
+            self.time.pps_seen().map(Telemetry::Pps),
+        ]
     }
 }
 
@@ -490,6 +498,7 @@ mod time_sync;
 
 use averager::Averager;
 use calibration::Calibration;
+pub use commands::{COMMAND_REPLIES_MAX, CommandReplies};
 use dump::Dumps;
 use intake::Intake;
 use nav_stage::NavStage;

@@ -1,5 +1,6 @@
-//! The command interpreter: one command message in, its ack (and any data) out through the outbox; the upload
-//! commit's ack waits for the platform's store.
+//! The command interpreter: one command message in, its replies out as the call's result (the ack first, then any
+//! report or FPGA message it asked for); an upload commit's ack waits for the platform's store. Nothing a command
+//! produces goes through the outbox, which carries only what the frames and the PPS produce.
 
 use super::{Averager, GROUPS, MAX_FRAMES_PER_OUTPUT, Output, Pipeline, PipelineMemory};
 use crate::fuse::{FusionConfig, FusionMode};
@@ -9,31 +10,43 @@ use crate::telemetry::{
 };
 use crate::wire::FpgaControl;
 use core::borrow::BorrowMut;
+use heapless::Vec;
+
+/// Most outputs one command produces: `SetTime`'s ack, time report and PPS report.
+pub const COMMAND_REPLIES_MAX: usize = 3;
+
+/// What one command produced, in sending order: its ack first, then any report or FPGA message it asked for; or,
+/// after a `CalCommit` that succeeded, [`Output::PersistCalibration`] alone (the ack waits for the store).
+pub type CommandReplies = Vec<Output, COMMAND_REPLIES_MAX>;
 
 impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
-    /// Handles one command message (the payload of a bus packet); the ack (and any data) follow in `poll`.
-    pub fn handle_command(&mut self, bytes: &[u8]) {
+    /// Handles one command message (the payload of a bus packet) and returns what it produced. Dumps it starts
+    /// (`AllanRequest`, `HealthRequest { detail: true }`) come from [`Self::poll_dump`].
+    pub fn handle_command(&mut self, bytes: &[u8]) -> CommandReplies {
         let tag = peek_tag(bytes);
+        let mut replies = CommandReplies::new();
         let mut commit = false;
+        // Room for the ack ahead of what the command produces (`execute` fills the rest).
+        let mut produced = Vec::<Output, { COMMAND_REPLIES_MAX - 1 }>::new();
         let result = match decode::<CommandEnvelope>(bytes) {
             Err(DecodeError::Version(v)) => Err(Reject::Version(v)),
             Err(_) => Err(Reject::Malformed),
             Ok(env) => {
                 commit = matches!(env.cmd, Command::CalCommit);
-                self.execute(env.cmd)
+                self.execute(env.cmd, &mut produced)
             }
         };
         if commit && result.is_ok() {
             // The ack waits for the store (`calibration_persisted`).
-            self.push(Output::PersistCalibration { tag });
-            return;
+            let _ = replies.push(Output::PersistCalibration { tag });
+            return replies;
         }
         self.count_command(&result);
-        // The ack goes ahead of any data the command produced.
-        let ack = Output::Telemetry(Telemetry::Ack(Ack { tag, result }));
-        if self.outbox.push_front(ack).is_err() {
-            self.telemetry_dropped = self.telemetry_dropped.wrapping_add(1);
+        let _ = replies.push(Output::Telemetry(Telemetry::Ack(Ack { tag, result })));
+        for o in produced {
+            let _ = replies.push(o);
         }
+        replies
     }
 
     /// The outcome of the store that [`Output::PersistCalibration`] asked for; returns the `CalCommit`'s ack
@@ -52,18 +65,26 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
         }
     }
 
-    fn execute(&mut self, cmd: Command) -> Result<(), Reject> {
+    /// Carries out `cmd`; what it produces besides the ack goes to `out` (at most two outputs: every arm pushes
+    /// fewer, so the pushes cannot fail).
+    fn execute(
+        &mut self,
+        cmd: Command,
+        out: &mut Vec<Output, { COMMAND_REPLIES_MAX - 1 }>,
+    ) -> Result<(), Reject> {
         match cmd {
             Command::Ping => {}
             Command::SetTime { unix_us } => {
                 self.time.set_time(unix_us);
-                self.push_time();
+                for t in self.time_reports().into_iter().flatten() {
+                    let _ = out.push(Output::Telemetry(t));
+                }
             }
             Command::SetDecimation(n) => {
                 if !self.config.link_carries(n) {
                     return Err(Reject::BadArgument);
                 }
-                self.push(Output::Fpga(FpgaControl::SetDecimation(n)))
+                let _ = out.push(Output::Fpga(FpgaControl::SetDecimation(n)));
             }
             Command::SetOutputRate(l) => {
                 if !(1..=MAX_FRAMES_PER_OUTPUT).contains(&l) {
@@ -74,7 +95,7 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
             }
             Command::SetMode(mode) => {
                 self.mode = mode;
-                self.push(Output::Fpga(FpgaControl::SetStreaming(
+                let _ = out.push(Output::Fpga(FpgaControl::SetStreaming(
                     mode == Mode::Stream,
                 )));
             }
@@ -112,8 +133,7 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
             Command::AllanRequest { first, count } => self.cursor.start_allan(first, count)?,
             Command::AllanReset => self.memory.borrow_mut().allan.reset(),
             Command::HealthRequest { detail } => {
-                let h = self.health();
-                self.push(Output::Telemetry(Telemetry::Health(h)));
+                let _ = out.push(Output::Telemetry(Telemetry::Health(self.health())));
                 if detail {
                     self.cursor.start_faults();
                 }

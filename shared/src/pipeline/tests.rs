@@ -84,10 +84,14 @@ fn fused(outputs: &[Output]) -> Vec<FusedReport> {
         .collect()
 }
 
+/// A command's replies (returned by the call), then everything else the pipeline has to say now.
 fn command(p: &mut HostPipeline, tag: u16, cmd: Command) -> Vec<Output> {
     let mut buf = [0u8; 256];
-    p.handle_command(encode(&CommandEnvelope { tag, cmd }, &mut buf).unwrap());
-    drain(p)
+    let mut out = p
+        .handle_command(encode(&CommandEnvelope { tag, cmd }, &mut buf).unwrap())
+        .to_vec();
+    out.extend(drain(p));
+    out
 }
 
 fn ack(outputs: &[Output]) -> Ack {
@@ -320,21 +324,24 @@ fn commands_are_acknowledged_or_rejected_with_a_reason() {
         ack(&command(&mut p, 5, Command::CalCommit)).result,
         Err(Reject::CalNotStarted)
     );
-    p.handle_command(&[9, 1, 2]);
     assert_eq!(
-        p.poll(),
-        Some(Output::Telemetry(Telemetry::Ack(Ack {
+        p.handle_command(&[9, 1, 2]).as_slice(),
+        [Output::Telemetry(Telemetry::Ack(Ack {
             tag: 1,
             result: Err(Reject::Version(9))
-        })))
+        }))]
     );
-    p.handle_command(&[PROTOCOL_VERSION, 6, 77]);
     assert_eq!(
-        p.poll(),
-        Some(Output::Telemetry(Telemetry::Ack(Ack {
+        p.handle_command(&[PROTOCOL_VERSION, 6, 77]).as_slice(),
+        [Output::Telemetry(Telemetry::Ack(Ack {
             tag: 6,
             result: Err(Reject::Malformed)
-        })))
+        }))]
+    );
+    assert_eq!(
+        p.poll(),
+        None,
+        "a command's replies never go through the outbox"
     );
     let h = p.health();
     assert_eq!(h.commands, [3, 7]);
@@ -514,7 +521,12 @@ mod no_panic {
             bytes.extend_from_slice(&link);
             run(&mut p, &bytes);
             for c in &commands {
-                p.handle_command(c);
+                let replies = p.handle_command(c);
+                let first_is_ack = matches!(
+                    replies.first(),
+                    Some(Output::Telemetry(Telemetry::Ack(_)) | Output::PersistCalibration { .. })
+                );
+                prop_assert!(first_is_ack, "{:?}", replies);
                 drain(&mut p);
             }
             command(&mut p, 1, Command::AllanRequest { first: 0, count: u8::MAX });

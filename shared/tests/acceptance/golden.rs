@@ -241,20 +241,25 @@ impl Run {
 
     fn drain(&mut self) {
         while let Some(o) = self.p.poll() {
-            self.h.output(&o);
-            match &o {
-                Output::Telemetry(t) => {
-                    self.telemetry_line("out", t);
-                    match t {
-                        Telemetry::Health(_) => self.seen.health_reports += 1,
-                        Telemetry::Fused(_) => self.seen.fused_reports += 1,
-                        _ => {}
-                    }
+            self.record(o);
+        }
+    }
+
+    /// One output, from the outbox or a command's replies.
+    fn record(&mut self, o: Output) {
+        self.h.output(&o);
+        match &o {
+            Output::Telemetry(t) => {
+                self.telemetry_line("out", t);
+                match t {
+                    Telemetry::Health(_) => self.seen.health_reports += 1,
+                    Telemetry::Fused(_) => self.seen.fused_reports += 1,
+                    _ => {}
                 }
-                Output::Fpga(c) => self.line("fpga", &format!("\"{c:?}\"")),
-                Output::PersistCalibration { tag } => {
-                    self.line("persist", &format!("{{\"tag\":{tag}}}"));
-                }
+            }
+            Output::Fpga(c) => self.line("fpga", &format!("\"{c:?}\"")),
+            Output::PersistCalibration { tag } => {
+                self.line("persist", &format!("{{\"tag\":{tag}}}"));
             }
         }
     }
@@ -285,8 +290,12 @@ impl Run {
 
     fn command(&mut self, tag: u16, cmd: Command) {
         let mut buf = [0u8; 256];
-        self.p
+        let replies = self
+            .p
             .handle_command(encode(&CommandEnvelope { tag, cmd }, &mut buf).unwrap());
+        for o in replies {
+            self.record(o);
+        }
         self.drain();
         self.drain_dumps();
     }
