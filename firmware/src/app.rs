@@ -39,7 +39,8 @@ use shared::calib::encoded_len_max;
 use shared::pipeline::{Output, Pipeline, PipelineConfig, PipelineMemory};
 use shared::storage::{CalStore, StoreError};
 use shared::telemetry::{
-    CalSource, FaultRecord, HousekeepingReport, RxErrorCounts, StoreOutcome, Telemetry,
+    CalSource, FaultRecord, HealthReport, HousekeepingReport, RxErrorCounts, StoreOutcome,
+    Telemetry,
 };
 use shared::wire::FpgaControl;
 use shared::wire::frame::GROUPS;
@@ -154,10 +155,16 @@ macro_rules! shell_counters {
 }
 
 shell_counters! {
+    /// FPGA receive overruns: the UART driver's, plus one per ring dropped after a flash stall (reported in health
+    /// as `link.overruns` and in housekeeping).
+    link_overruns: LinkOverrun,
     /// FPGA receive errors: framing, noise or parity.
     link_line_errors: LinkLine,
-    /// FPGA receive errors of any other kind (overruns go to the pipeline's link counters).
+    /// FPGA receive errors of any other kind.
     link_other_errors: LinkOther,
+    /// Telemetry messages dropped because the bus queue was full (added to health's `telemetry_dropped`, with the
+    /// pipeline's own outbox overflows).
+    telemetry_dropped: TelemetryDropped,
     /// Bus receive errors: overrun (UART or DMA ring).
     bus_rx_overruns: BusRxOverrun,
     /// Bus receive errors: framing, noise or parity.
@@ -346,7 +353,7 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
             mcu_temp_cdeg: sensors.map(|s| s.0),
             vdda_mv: sensors.map(|s| s.1),
             link_rx_errors: RxErrorCounts {
-                overrun: p.link_counters().overruns,
+                overrun: c.link_overruns,
                 line: c.link_line_errors,
                 other: c.link_other_errors,
             },
@@ -381,12 +388,12 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
     }
 
     /// Sends one output where it belongs without waiting: telemetry that finds its queue full is dropped and counted
-    /// in the pipeline's health.
-    fn route(&self, p: &mut Pipeline<B>, o: Output) {
+    /// (`telemetry_dropped`).
+    fn route(&self, o: Output) {
         match o {
             Output::Telemetry(t) => {
-                if self.telemetry.try_send(t).is_err() {
-                    p.note_telemetry_dropped(1);
+                if self.telemetry.try_send(self.stamp(t)).is_err() {
+                    self.count(Counter::TelemetryDropped);
                 }
             }
             Output::Fpga(c) => {
@@ -398,10 +405,34 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
         }
     }
 
+    /// A message on its way out, with the shell's own facts in a health report: the core knows neither the uptime
+    /// nor what the shell lost (link overruns, telemetry dropped here), so the shell, their one owner, adds them.
+    fn stamp(&self, t: Telemetry) -> Telemetry {
+        match t {
+            Telemetry::Health(h) => Telemetry::Health(self.stamp_health(h)),
+            other => other,
+        }
+    }
+
+    /// `h` with the shell's facts (see `stamp`).
+    fn stamp_health(&self, mut h: HealthReport) -> HealthReport {
+        h.uptime_ms = Instant::now().as_millis();
+        h.link.overruns = self.counters.get(Counter::LinkOverrun);
+        h.telemetry_dropped = h
+            .telemetry_dropped
+            .wrapping_add(self.counters.get(Counter::TelemetryDropped));
+        h
+    }
+
+    /// The health report the shell would send now: `p`'s, with the shell's own facts.
+    pub fn health(&self, p: &Pipeline<B>) -> HealthReport {
+        self.stamp_health(p.health())
+    }
+
     /// Routes everything queued in the pipeline, without waiting.
     fn route_all(&self, p: &mut Pipeline<B>) {
         while let Some(o) = p.poll() {
-            self.route(p, o);
+            self.route(o);
         }
     }
 }
@@ -426,6 +457,7 @@ where
             // partial frame, and count one overrun; the next frame's sequence gap counts the frames lost.
             let dropped = drain(rx, &mut buf).await;
             app.pipeline.lock().await.link_discarded();
+            app.count(Counter::LinkOverrun);
             warn!("fpga link: {:?} bytes dropped after a flash stall", dropped);
             continue;
         }
@@ -434,7 +466,7 @@ where
             Ok(Ok(n)) => n,
             Ok(Err(e)) => {
                 match e.classify() {
-                    RxFault::Overrun => app.pipeline.lock().await.note_link_overruns(1),
+                    RxFault::Overrun => app.count(Counter::LinkOverrun),
                     RxFault::Line => app.count(Counter::LinkLine),
                     RxFault::Other => app.count(Counter::LinkOther),
                 }
@@ -447,9 +479,7 @@ where
         let mut input = buf.get(..n).unwrap_or(&[]);
         let mut p = app.pipeline.lock().await;
         let c0 = app.platform.cycles.map(|c| (c.now)());
-        let now = Instant::now();
-        p.set_uptime_ms(now.as_millis());
-        p.set_arrival_us(now.as_micros());
+        p.set_arrival_us(Instant::now().as_micros());
         while !input.is_empty() {
             p.push_link(&mut input);
             app.route_all(&mut p);
@@ -508,8 +538,10 @@ where
                     let replies = app.pipeline.lock().await.handle_command(payload);
                     for o in replies {
                         match o {
-                            Output::Telemetry(t) => app.replies.send(BusOut::Telemetry(t)).await,
-                            other => app.route(&mut *app.pipeline.lock().await, other),
+                            Output::Telemetry(t) => {
+                                app.replies.send(BusOut::Telemetry(app.stamp(t))).await
+                            }
+                            other => app.route(other),
                         }
                     }
                 }
@@ -789,13 +821,11 @@ where
         ticker.next().await;
         // The ADC conversions before the pipeline is locked: the link task need not wait for them.
         let sensors = app.platform.mcu_sensors.and_then(|read| read());
-        let mut p = app.pipeline.lock().await;
+        let p = app.pipeline.lock().await;
         let link = *p.link_counters();
         let now = Instant::now();
-        p.set_uptime_ms(now.as_millis());
         if last_frames == Some(link.frames) {
-            let h = p.health();
-            app.route(&mut p, Output::Telemetry(Telemetry::Health(h)));
+            app.route(Output::Telemetry(Telemetry::Health(p.health())));
             app.count(Counter::SilentHealth);
         }
         // The core's load over the period, from the cycle counter (if the board has one).
@@ -820,7 +850,7 @@ where
         (last_busy, last_at) = (busy, now);
         last_frames = Some(link.frames);
         let hk = app.housekeeping(&p, now, load, sensors);
-        app.route(&mut p, Output::Telemetry(Telemetry::Housekeeping(hk)));
+        app.route(Output::Telemetry(Telemetry::Housekeeping(hk)));
         app.count(Counter::Housekeeping);
         if !p.calibration_intact() {
             error!("calibration: CRC check of the table in RAM failed; reloading from flash");

@@ -91,7 +91,7 @@ fn replay_through_the_tasks_is_byte_identical_to_ground_replay() {
         assert_eq!(Instant::now().as_ticks(), 0);
         board.bus_tx.take_all()
     });
-    let h = sat.app.pipeline.try_lock().unwrap().health();
+    let h = sat.app.health(&sat.app.pipeline.try_lock().unwrap());
     assert_eq!(h.link.frames, 5000);
     assert_eq!(h.telemetry_dropped, 0);
     assert_eq!(bytes.len(), expected.telemetry.len());
@@ -124,7 +124,7 @@ fn slow_bus_drops_and_counts_telemetry_but_never_holds_up_the_link() {
         ground.receive(board);
         ground.bytes.len()
     });
-    let h = sat.app.pipeline.try_lock().unwrap().health();
+    let h = sat.app.health(&sat.app.pipeline.try_lock().unwrap());
     let c = sat.app.counters();
     assert_eq!(h.link.frames, frames_n as u32);
     assert_eq!(h.link.overruns, 0);
@@ -245,7 +245,9 @@ fn every_command_is_answered_exactly_once() {
             .any(|h| h.frames_per_output == 64)
     );
     assert_eq!(
-        sat.app.pipeline.try_lock().unwrap().health().commands,
+        sat.app
+            .health(&sat.app.pipeline.try_lock().unwrap())
+            .commands,
         [4, 6]
     );
 }
@@ -405,7 +407,7 @@ fn uart_errors_are_counted_and_cost_only_the_frames_they_touch() {
         }
         Timer::after(Duration::from_millis(200)).await;
     });
-    let h = sat.app.pipeline.try_lock().unwrap().health();
+    let h = sat.app.health(&sat.app.pipeline.try_lock().unwrap());
     let c = sat.app.counters();
     assert_eq!(c.link_line_errors, 2);
     assert_eq!(h.link.overruns, 1);
@@ -614,7 +616,7 @@ fn a_store_during_streaming_loses_at_most_the_documented_frames_and_no_command()
     assert!(commit_acked_after_store);
     assert_eq!(ping_ack.result, Ok(()), "the command sent during the store");
 
-    let h = sat.app.pipeline.try_lock().unwrap().health();
+    let h = sat.app.health(&sat.app.pipeline.try_lock().unwrap());
     let lost = frames_n as u64 - u64::from(h.link.frames);
     let bound = firmware::layout::store_frames_lost_max(604_800);
     eprintln!(

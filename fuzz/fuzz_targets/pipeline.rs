@@ -2,7 +2,7 @@
 //!
 //! Input: a sequence of operations: arbitrary link bytes, valid-CRC frames (structured ADC codes, sequence
 //! numbers, decimation, temperature), damaged frames, arbitrary command bytes, well-formed commands, complete
-//! calibration uploads (optionally corrupted), polls, dumps, overruns, uptime.
+//! calibration uploads (optionally corrupted), polls, dumps, link bytes dropped by the platform.
 //! Properties:
 //! * never panics (overflow checks on);
 //! * the link counters and the health report's counters (commands accepted/refused, invalid frames, dropped
@@ -100,8 +100,8 @@ enum Op {
     Upload(Upload),
     Poll(u8),
     Dump(u8),
-    Overruns(u16),
-    Uptime(u64),
+    /// The platform dropped its buffered link bytes (`link_discarded`).
+    LinkDiscarded,
     /// Arrival stamp for the frames that follow (`set_arrival_us`).
     Arrival(u64),
     /// A PPS edge (`pps`): arbitrary times, before or after `SetTime`.
@@ -318,8 +318,7 @@ fn check(input: Input) {
                     assert_eq!(telemetry::decode::<Telemetry>(enc), Ok(t));
                 }
             }
-            Op::Overruns(n) => run.p.note_link_overruns(u32::from(*n)),
-            Op::Uptime(ms) => run.p.set_uptime_ms(*ms),
+            Op::LinkDiscarded => run.p.link_discarded(),
             Op::Arrival(us) => run.p.set_arrival_us(*us),
             Op::Pps(us) => {
                 let before = run.p.pps_report();

@@ -170,7 +170,6 @@ pub struct Pipeline<B> {
     outbox: heapless::Deque<Output, OUTBOX_LEN>,
     /// The dumps under way.
     cursor: Dumps,
-    uptime_ms: u64,
     mode: Mode,
     /// Frame time and spacecraft time.
     time: TimeSync,
@@ -210,7 +209,6 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
             outputs_since_health: 0,
             outbox: heapless::Deque::new(),
             cursor: Dumps::NEW,
-            uptime_ms: 0,
             mode: Mode::Stream,
             time: TimeSync::NEW,
             nav: NavStage::NEW,
@@ -286,22 +284,11 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
         self.intake.decoder.counters()
     }
 
-    /// Adds receive overruns reported by the platform's UART driver.
-    pub fn note_link_overruns(&mut self, n: u32) {
-        self.intake.decoder.note_overruns(n);
-    }
-
     /// The platform dropped the link bytes it had buffered (after a CPU stall long enough for its DMA ring to lap,
-    /// the ring holds bytes of different laps): the decoder's partial frame is forgotten and one overrun counted;
-    /// the next frame's sequence gap counts the frames lost.
+    /// the ring holds bytes of different laps): the decoder's partial frame is forgotten (the platform counts the
+    /// overrun); the next frame's sequence gap counts the frames lost.
     pub fn link_discarded(&mut self) {
         self.intake.decoder.discard_partial();
-    }
-
-    /// Adds telemetry messages the platform could not send (its bus queue was full); reported in health as
-    /// `telemetry_dropped`, with the pipeline's own outbox overflows.
-    pub fn note_telemetry_dropped(&mut self, n: u32) {
-        self.telemetry_dropped = self.telemetry_dropped.wrapping_add(n);
     }
 
     /// The platform's monotonic time, µs, at which the bytes about to be pushed were read. With it, an outage the
@@ -321,11 +308,6 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
     /// Outages bridged by arrival time (see [`Self::set_arrival_us`]).
     pub fn time_gaps(&self) -> u32 {
         self.intake.time_gaps()
-    }
-
-    /// Sets the uptime reported in health (the platform's clock).
-    pub fn set_uptime_ms(&mut self, ms: u64) {
-        self.uptime_ms = ms;
     }
 
     /// The Allan accumulators (channels: see [`SENSOR_CHANNELS`], [`FUSED_CHANNEL0`]).

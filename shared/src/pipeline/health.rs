@@ -6,7 +6,9 @@ use crate::telemetry::HealthReport;
 use core::borrow::BorrowMut;
 
 impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
-    /// A health report now.
+    /// A health report now, with the core's counters. The platform owns three of its fields and sets them on the
+    /// way out: `uptime_ms` and `link.overruns` (0 here), and what it dropped itself, added to `telemetry_dropped`
+    /// (here: the outbox's overflows).
     pub fn health(&self) -> HealthReport {
         let mut faults = [FaultCounts::default(); 2];
         for g in 0..GROUPS {
@@ -19,7 +21,7 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
         }
         let fusion = self.fusion.config();
         HealthReport {
-            uptime_ms: self.uptime_ms,
+            uptime_ms: 0,
             link: *self.intake.decoder.counters(),
             cal_id: self.cal.table.cal_id,
             cal_source: self.cal.source,

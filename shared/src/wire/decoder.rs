@@ -23,7 +23,8 @@ pub struct LinkCounters {
     pub frames_dropped: u32,
     /// Sequence jumps backwards (FPGA reset or duplicate); not counted as drops.
     pub seq_restarts: u32,
-    /// Receive overruns reported by the transport (the UART driver), added by the firmware.
+    /// Receive overruns of the transport (the UART driver's, and rings dropped after a stall): the platform's count,
+    /// which it sets in the health report it sends; the decoder leaves it 0.
     pub overruns: u32,
 }
 
@@ -109,17 +110,11 @@ impl FrameDecoder {
         &self.counters
     }
 
-    /// Adds receive overruns reported by the transport to the statistics.
-    pub fn note_overruns(&mut self, n: u32) {
-        self.counters.overruns = self.counters.overruns.wrapping_add(n);
-    }
-
-    /// Forgets the partial frame only, and counts one overrun: the transport dropped the bytes it had buffered (a
-    /// DMA ring lapped during a CPU stall). The sequence history stays, so the next frame's gap counts the frames
+    /// Forgets the partial frame only: the transport dropped the bytes it had buffered (a DMA ring lapped during a
+    /// CPU stall; the platform counts the overrun). The sequence history stays, so the next frame's gap counts the frames
     /// lost.
     pub fn discard_partial(&mut self) {
         self.len = 0;
-        self.note_overruns(1);
     }
 
     /// Forgets the partial frame and the sequence history (counters are kept), e.g. after a link restart.
