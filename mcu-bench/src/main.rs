@@ -12,12 +12,14 @@ use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
 use shared::bench::BenchFrames;
+use shared::calib::thermal::ThermalComp;
 use shared::calib::{AXES, CalibrationTable, RawCounts};
 use shared::fuse::{FusedSample, Fusion, FusionConfig, FusionMode};
 use shared::nav::NavIntegrator;
-use shared::pipeline::{PipelineMemory, Pipeline, PipelineConfig};
+use shared::pipeline::stages::{self, FrameHead};
+use shared::pipeline::{Pipeline, PipelineConfig, PipelineMemory};
+use shared::wire::FrameDecoder;
 use shared::wire::frame::{FRAME_LEN, GROUPS};
-use shared::wire::{Frame, FrameDecoder};
 
 /// Instructions per SysTick tick: `-icount shift=3` = 8 ns per instruction, SysTick at 25 MHz = 40 ns per tick.
 const INSTRUCTIONS_PER_TICK: u64 = 5;
@@ -212,34 +214,35 @@ fn count(
     }
 }
 
-/// The stages of a frame's path run one at a time over the same stream (default fusion), so that each has its own
-/// count: link decoding with the CRC, ADC codes to signed counts, the 16 groups' calibration, the fusion, the 102 Allan
-/// channels, the navigation increments. Their sum is below the pipeline's by what `Pipeline` adds (output averaging,
-/// health, bookkeeping).
+/// The stages of a frame's path (`shared::pipeline::stages`, the functions `Pipeline` calls) run one at a time
+/// over the same stream (default fusion), so that each has its own count: link decoding with the CRC and the ADC
+/// codes to signed counts, the 16 groups' calibration, the fusion, the 102 Allan channels, the navigation
+/// increments. Their sum is below the pipeline's by what `Pipeline` adds (time, output averaging, health,
+/// bookkeeping).
 fn stages(bank: &mut PipelineMemory) {
-    const NAMES: [&str; 6] = [
-        "decode + CRC",
-        "ADC codes to signed counts",
+    const NAMES: [&str; 5] = [
+        "decode + CRC + ADC codes to signed counts",
         "calibration (16 groups)",
         "fusion",
         "Allan (102 channels)",
         "navigation increments (f32, coning + sculling)",
     ];
-    const RAD_PER_UDEG: f32 = core::f32::consts::PI / 180.0e6;
-    const MPS2_PER_UG: f32 = 9.806_65e-6;
     let mut nav = NavIntegrator::new();
     let mut nav_frames = 0usize;
     let cal = CalibrationTable::<GROUPS>::factory();
+    let mut thermal = ThermalComp::<GROUPS>::new();
+    thermal.load(&cal);
     let mut decoder = FrameDecoder::new();
     let mut fusion = Fusion::<GROUPS>::new(FusionConfig::DEFAULT);
     bank.allan.reset();
     let mut frames = BenchFrames::new();
     let mut bytes = [0u8; FRAME_LEN * BATCH];
-    let mut heads = [(0u16, None::<i16>); BATCH];
+    let mut heads = [FrameHead::default(); BATCH];
     let mut raw = [[RawCounts::default(); GROUPS]; BATCH];
     let mut axes = [[[0i32; AXES]; GROUPS]; BATCH];
-    let mut fused = [[0i32; AXES]; BATCH];
-    let mut sample = FusedSample::default();
+    let mut fused = [FusedSample::default(); BATCH];
+    let mut hold = [0i32; AXES];
+    let dt_s = stages::frame_dt_s(15, shared::wire::clock::FPGA_BASE_RATE_MILLIHZ);
     let overhead = ticks_between(|| {});
     let mut totals = [0u64; NAMES.len()];
     for batch in 0..WARMUP_FRAMES / BATCH + BATCHES {
@@ -249,50 +252,33 @@ fn stages(bank: &mut PipelineMemory) {
         let ticks = [
             ticks_between(|| {
                 let mut input = &bytes[..];
-                // As `Pipeline::push_link`: the frame lent, its header read (the codes in the next stage).
-                for h in heads.iter_mut() {
-                    let lent =
-                        decoder.decode_with(&mut input, |f| *h = (f.decimation(), f.temp_cdeg()));
-                    core::hint::black_box(lent);
-                }
-            }),
-            ticks_between(|| {
-                // As `Pipeline::push_link`: the codes read from the frame's bytes.
-                for (bytes, r) in bytes.chunks_exact(FRAME_LEN).zip(&mut raw) {
-                    if let Ok(f) = Frame::new_checked(bytes) {
-                        RawCounts::read_frame(&f, r);
+                for (h, r) in heads.iter_mut().zip(&mut raw) {
+                    if let Some((head, gap)) = stages::decode(&mut decoder, &mut input, r) {
+                        *h = head;
+                        core::hint::black_box(gap);
                     }
                 }
             }),
             ticks_between(|| {
-                for (r, a) in raw.iter().zip(&mut axes) {
-                    for ((out, r), g) in a.iter_mut().zip(r.iter()).zip(&cal.groups) {
-                        *out = g.apply(r);
-                    }
+                for ((h, r), a) in heads.iter().zip(&raw).zip(&mut axes) {
+                    stages::calibrate(&mut thermal, &cal, h.temp_cdeg, r, a);
                 }
             }),
             ticks_between(|| {
-                // As `Pipeline`: into one slot.
                 for ((f, r), a) in fused.iter_mut().zip(&raw).zip(&axes) {
-                    fusion.fuse_into(r, a, &cal, &mut sample);
-                    *f = sample.axes;
+                    fusion.fuse_into(r, a, &cal, f);
                 }
             }),
             ticks_between(|| {
                 for (a, f) in axes.iter().zip(&fused) {
-                    core::hint::black_box(bank.allan.push_parts(a.as_flattened(), f));
+                    stages::hold_valid(&mut hold, f);
+                    core::hint::black_box(bank.allan.push_parts(a.as_flattened(), &hold));
                 }
             }),
             ticks_between(|| {
-                // As `Pipeline` does: SI units, one frame period, an interval taken every 32 frames.
-                let dt_s = 16.0 * 1000.0 / shared::wire::clock::FPGA_BASE_RATE_MILLIHZ as f32;
+                // As `Pipeline` does: one frame period, an interval taken every 32 frames.
                 for f in &fused {
-                    let [gx, gy, gz, ax, ay, az] = f.map(|x| x as f32);
-                    nav.add(
-                        [gx * RAD_PER_UDEG, gy * RAD_PER_UDEG, gz * RAD_PER_UDEG],
-                        [ax * MPS2_PER_UG, ay * MPS2_PER_UG, az * MPS2_PER_UG],
-                        dt_s,
-                    );
+                    stages::nav_add(&mut nav, f, dt_s);
                     nav_frames += 1;
                     if nav_frames.is_multiple_of(32) {
                         core::hint::black_box(nav.take());

@@ -109,13 +109,6 @@ pub enum Output {
     },
 }
 
-/// The fields of a frame besides its ADC codes that the pipeline uses.
-#[derive(Clone, Copy, Debug, Default)]
-struct FrameHead {
-    decimation: u16,
-    temp_cdeg: Option<i16>,
-}
-
 /// One frame's groups between the stages: signed ADC counts, then calibrated axes.
 #[derive(Clone, Copy, Debug)]
 struct FrameScratch {
@@ -340,18 +333,8 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
     /// again with the rest. Nothing is lost either way.
     pub fn push_link(&mut self, input: &mut &[u8]) {
         while self.outbox.capacity().saturating_sub(self.outbox.len()) >= OUTPUTS_PER_FRAME {
-            // The frame is lent where it lies (`decode_with`): its ADC codes go straight into signed counts.
-            let raw = &mut self.scratch.raw;
-            let mut head = FrameHead::default();
-            let lent = self.intake.decoder.decode_with(input, |frame| {
-                head = FrameHead {
-                    decimation: frame.decimation(),
-                    temp_cdeg: frame.temp_cdeg(),
-                };
-                RawCounts::read_frame(frame, raw);
-            });
-            match lent {
-                Some(gap) => self.process(head, gap),
+            match stages::decode(&mut self.intake.decoder, input, &mut self.scratch.raw) {
+                Some((head, gap)) => self.process(head, gap),
                 None => return,
             }
         }
@@ -392,30 +375,24 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
             self.restart_statistics();
         }
 
-        // Loops into initialised arrays, not `array::map`: on the M4 (opt-level "s") the map's staging copies cost
-        // 3.0 k instructions per frame, the loop 0.8 k (`mcu-bench`); at opt-level 2 `from_fn` and `each_ref().map`
-        // still cost 0.4–0.7 k more than the loops.
-        let cal = &mut self.cal;
-        cal.thermal.update(&cal.table, head.temp_cdeg);
         let FrameScratch { raw, axes } = &mut self.scratch;
-        for ((out, r), group) in axes.iter_mut().zip(raw.iter()).zip(cal.thermal.groups()) {
-            *out = group.apply(r);
-        }
+        stages::calibrate(
+            &mut self.cal.thermal,
+            &self.cal.table,
+            head.temp_cdeg,
+            raw,
+            axes,
+        );
         // Fused straight into `last` (read below, and by `last_fused`).
         self.fusion
             .fuse_into(raw, axes, &self.cal.table, &mut self.last);
         if self.config.nav {
             self.integrate(head.decimation, missing, tick.base_ticks);
         }
-        let fused = &self.last;
-        if !fused.valid() {
+        if !self.last.valid() {
             self.invalid_frames = self.invalid_frames.wrapping_add(1);
         }
-        for ((hold, &x), &used) in self.fused_hold.iter_mut().zip(&fused.axes).zip(&fused.used) {
-            if used > 0 {
-                *hold = x;
-            }
-        }
+        stages::hold_valid(&mut self.fused_hold, &self.last);
         // Allan channels: the sensors' axes, then the fused axes (holding the last valid value).
         // 96 + 6 = ALLAN_CHANNELS values: always taken (until the accumulators' sample limit).
         let _ = self
@@ -476,6 +453,7 @@ mod dump;
 mod health;
 mod intake;
 mod nav_stage;
+pub mod stages;
 mod time_sync;
 
 use averager::Averager;
@@ -484,6 +462,7 @@ pub use commands::{COMMAND_REPLIES_MAX, CommandReplies};
 use dump::Dumps;
 use intake::Intake;
 use nav_stage::NavStage;
+use stages::FrameHead;
 pub use time_sync::PPS_TOLERANCE_US;
 use time_sync::TimeSync;
 

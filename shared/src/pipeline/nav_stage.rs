@@ -2,6 +2,7 @@
 //! ([`crate::nav::NavIntegrator`], sent as [`NavReport`] after every `Fused` report).
 
 use super::intake::Intake;
+use super::stages;
 use super::{Output, Pipeline, PipelineMemory};
 use crate::fuse::FusedSample;
 use crate::nav::NavIntegrator;
@@ -35,20 +36,13 @@ impl NavStage {
         missing: u32,
         base_ticks: u64,
     ) {
-        const RAD_PER_UDEG: f32 = core::f32::consts::PI / 180.0e6;
-        const MPS2_PER_UG: f32 = 9.806_65e-6;
         if self.start_ticks.is_none() {
             self.start_ticks = Some(base_ticks);
         } else {
             self.nav.bridge(missing, dt_s);
         }
         if fused.valid() {
-            let [gx, gy, gz, ax, ay, az] = fused.axes.map(|x| x as f32);
-            self.nav.add(
-                [gx * RAD_PER_UDEG, gy * RAD_PER_UDEG, gz * RAD_PER_UDEG],
-                [ax * MPS2_PER_UG, ay * MPS2_PER_UG, az * MPS2_PER_UG],
-                dt_s,
-            );
+            stages::nav_add(&mut self.nav, fused, dt_s);
         } else {
             self.nav.bridge(1, dt_s);
         }
@@ -80,8 +74,7 @@ impl NavStage {
 impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
     /// One frame into the navigation increments (see [`NavStage::add_frame`]).
     pub(super) fn integrate(&mut self, decimation: u16, missing: u32, base_ticks: u64) {
-        let dt_s = f32::from(decimation) + 1.0;
-        let dt_s = dt_s * 1000.0 / self.config.fpga_base_rate_millihz.max(1) as f32;
+        let dt_s = stages::frame_dt_s(decimation, self.config.fpga_base_rate_millihz);
         self.nav.add_frame(&self.last, dt_s, missing, base_ticks);
     }
 
