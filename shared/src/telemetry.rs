@@ -163,6 +163,30 @@ pub enum FaultKind {
     Panic,
 }
 
+/// Bus statistics (wrapping u32), counted by [`crate::bus::BusNode`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BusCounters {
+    /// Valid packets for us.
+    pub packets: u32,
+    /// KISS frames dropped (bad escape, command byte, oversize).
+    pub kiss_errors: u32,
+    /// CSP packets dropped (too short, CRC, unsupported flags).
+    pub csp_errors: u32,
+    /// Valid packets for another address or an unserved port.
+    pub ignored: u32,
+}
+
+impl BusCounters {
+    /// All counters zero (`Default`, usable in `const`).
+    pub const ZERO: Self = Self {
+        packets: 0,
+        kiss_errors: 0,
+        csp_errors: 0,
+        ignored: 0,
+    };
+}
+
 /// The board around the pipeline (appended message; the firmware sends one every second, streaming or not).
 /// Counters wrap; `None` is "not measured on this platform" (e.g. the SITL has no cycle counter or sensors).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -193,7 +217,7 @@ pub struct HousekeepingReport {
     /// Bus transmit errors.
     pub bus_tx_errors: u32,
     /// The bus node's counters.
-    pub bus: crate::bus::BusCounters,
+    pub bus: BusCounters,
     /// FPGA control messages dropped (queue full).
     pub fpga_ctrl_dropped: u32,
     /// Outages bridged by arrival time (an FPGA restart, a counter wrap: `Pipeline::set_arrival_us`).
@@ -559,7 +583,7 @@ mod tests {
                     other: u32::MAX,
                 },
                 bus_tx_errors: u32::MAX,
-                bus: crate::bus::BusCounters {
+                bus: BusCounters {
                     packets: u32::MAX,
                     kiss_errors: u32::MAX,
                     csp_errors: u32::MAX,

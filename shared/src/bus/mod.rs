@@ -63,29 +63,8 @@ pub enum BusEvent<'a> {
     },
 }
 
-/// Bus statistics (wrapping u32).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct BusCounters {
-    /// Valid packets for us.
-    pub packets: u32,
-    /// KISS frames dropped (bad escape, command byte, oversize).
-    pub kiss_errors: u32,
-    /// CSP packets dropped (too short, CRC, unsupported flags).
-    pub csp_errors: u32,
-    /// Valid packets for another address or an unserved port.
-    pub ignored: u32,
-}
-
-impl BusCounters {
-    /// All counters zero (`Default`, usable in `const`).
-    pub const ZERO: Self = Self {
-        packets: 0,
-        kiss_errors: 0,
-        csp_errors: 0,
-        ignored: 0,
-    };
-}
+/// Bus statistics: a telemetry type (reported in housekeeping), counted here.
+pub use crate::telemetry::BusCounters;
 
 /// The sans-IO bus endpoint.
 #[derive(Clone, Debug)]
