@@ -3,8 +3,8 @@
 //! noise-term fit, the equal-weight independence expectation, and Kalibr's `imu.yaml`.
 
 use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options, TauSpec};
-use crate::formats::csv::{AXIS_NAMES, AxisMean, Recording, SensorKind};
 use crate::noisefit::{self, NoiseFit};
+use crate::recording::{AXIS_NAMES, AxisMean, Recording, SensorKind};
 use rayon::prelude::*;
 use std::fmt::Write as _;
 
@@ -431,7 +431,7 @@ pub fn kalibr_check(series: &[Series], rate_hz: f64) -> Result<Vec<String>, Adev
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::formats::csv::Column;
+    use crate::recording::Column;
 
     fn white(seed: u64, n: usize, sigma: f64) -> Vec<f64> {
         // Independent of the simulator under test elsewhere.

@@ -354,7 +354,7 @@ type Diagnosed = (Vec<String>, Option<(String, f64)>, crate::twin::LoopSummary);
 /// one summary line per effect returned, and the axis with the largest shared-flicker share; then the twin's loop
 /// in `twin_dir` (`twin::close_the_loop`).
 fn diagnose_record(
-    rec: &crate::formats::Recording,
+    rec: &crate::recording::Recording,
     dir: &Path,
     twin_dir: &Path,
 ) -> Result<Diagnosed> {

@@ -3,8 +3,8 @@
 //! within its first bytes) or MIMU4444 stream (a valid 0xAA frame within its first bytes), and reads calibration
 //! files of either array (16 groups: our board; 8 IMUs: the MIMU4444) in any of their forms (.bin, .json, .toml).
 
-use crate::formats::csv::{AxisMean, Recording};
 use crate::formats::framelog::FrameLog;
+use crate::recording::{AxisMean, Recording};
 use anyhow::{Context, Result, bail};
 use shared::calib::CalibrationTable;
 use shared::wire::frame::{GROUPS, SYNC};
@@ -41,7 +41,7 @@ pub fn detect(path: &Path, head: &[u8]) -> Result<InputKind> {
     if head.windows(SYNC.len()).take(512).any(|w| w == SYNC) {
         return Ok(InputKind::FrameLog);
     }
-    if (0..head.len().min(512)).any(|i| crate::mimu::Frame::decode(&head[i..]).is_ok()) {
+    if (0..head.len().min(512)).any(|i| crate::formats::mimu::Frame::decode(&head[i..]).is_ok()) {
         return Ok(InputKind::Mimu);
     }
     bail!(
@@ -74,7 +74,7 @@ pub enum Calibration {
 }
 
 /// IMUs of the MIMU4444 array.
-pub const MIMU_IMUS: usize = crate::mimu::IMUS;
+pub const MIMU_IMUS: usize = crate::formats::mimu::IMUS;
 
 /// Reads a calibration file of either array (`.bin`, `.json`, `.toml`), told apart by its number of groups.
 pub fn read_any_calibration(path: &Path) -> Result<Calibration> {
@@ -95,7 +95,7 @@ pub fn read_any_calibration(path: &Path) -> Result<Calibration> {
 /// The physical recording of a MIMU4444 stream: with `cal`, the table (µ-units, fixed point, in the cluster frame
 /// it defines); without, the nominal scales (2048 counts/g, 16.4 counts/(°/s)) in each IMU's own frame.
 pub fn mimu_recording(
-    m: &crate::mimu::Recording,
+    m: &crate::formats::mimu::Recording,
     cal: Option<&CalibrationTable<MIMU_IMUS>>,
 ) -> Recording {
     use shared::calib::RawCounts;
@@ -113,7 +113,10 @@ pub fn mimu_recording(
                     })
                     .map(|x| f64::from(x) / 1e6),
                 None => {
-                    let (gs, as_) = (crate::mimu::GYRO_LSB_PER_DPS, crate::mimu::ACCEL_LSB_PER_G);
+                    let (gs, as_) = (
+                        crate::formats::mimu::GYRO_LSB_PER_DPS,
+                        crate::formats::mimu::ACCEL_LSB_PER_G,
+                    );
                     [
                         f64::from(g[0]) / gs,
                         f64::from(g[1]) / gs,
@@ -268,7 +271,8 @@ fn load_npy(path: &Path, bytes: &[u8], cal: Option<&Calibration>) -> Result<Load
 
 /// A MIMU4444 stream, through `cal` (an 8-IMU table) or the nominal scales.
 fn load_mimu(path: &Path, bytes: &[u8], cal: Option<&Calibration>) -> Result<Loaded> {
-    let m = crate::mimu::parse(bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let m = crate::formats::mimu::parse(bytes)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     let table = match cal {
         Some(Calibration::Mimu(t)) => Some(t.as_ref()),
         Some(Calibration::Board(_)) => {

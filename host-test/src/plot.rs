@@ -2,7 +2,7 @@
 //! run time from the system (Debian package `fonts-dejavu-core`) or from `$GROUND_FONT`.
 
 use crate::adev;
-use crate::formats::SensorKind;
+use crate::recording::SensorKind;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::Path;

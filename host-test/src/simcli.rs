@@ -543,17 +543,17 @@ pub fn frame_opts(rate_hz: f64, base_rate_hz: f64) -> FrameOpts {
     }
 }
 
-/// Collects a simulation's chunks into an in-memory [`Recording`](crate::formats::Recording) (physical values,
+/// Collects a simulation's chunks into an in-memory [`Recording`](crate::recording::Recording) (physical values,
 /// °/s and g; `temp_c` when the simulation has a thermal effect), as it streams.
 pub struct RecordingSink {
-    rec: crate::formats::Recording,
+    rec: crate::recording::Recording,
 }
 
 impl RecordingSink {
     /// An empty recording with room for `samples` rows of the 16 groups × 6 axes.
     pub fn new(samples: usize, with_temp: bool) -> Self {
-        use crate::formats::csv::{Column, SensorKind};
-        let mut rec = crate::formats::Recording {
+        use crate::recording::{Column, SensorKind};
+        let mut rec = crate::recording::Recording {
             t_s: Vec::with_capacity(samples),
             temp_c: with_temp.then(|| Vec::with_capacity(samples)),
             columns: Vec::new(),
@@ -590,14 +590,14 @@ impl RecordingSink {
     }
 
     /// The recording, columns ordered as the CSV reader orders them.
-    pub fn finish(mut self) -> crate::formats::Recording {
+    pub fn finish(mut self) -> crate::recording::Recording {
         self.rec.columns.sort_by_key(|c| (c.kind, c.group, c.axis));
         self.rec
     }
 }
 
-/// Runs a simulation into an in-memory [`Recording`](crate::formats::Recording) (see [`RecordingSink`]).
-pub fn recording(cfg: SimConfig) -> Result<crate::formats::Recording> {
+/// Runs a simulation into an in-memory [`Recording`](crate::recording::Recording) (see [`RecordingSink`]).
+pub fn recording(cfg: SimConfig) -> Result<crate::recording::Recording> {
     let mut sink = RecordingSink::new(cfg.samples as usize, cfg.thermal.is_some());
     let mut sim = Simulator::new(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut chunk = Chunk::default();

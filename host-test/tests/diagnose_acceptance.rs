@@ -9,7 +9,7 @@ mod common;
 
 use common::effects::*;
 use host_test::diagnose::{Effect, Groups, Options, Report, diagnose};
-use host_test::formats::Recording;
+use host_test::recording::Recording;
 use host_test::sim::{
     Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, SimConfig,
 };

@@ -172,9 +172,9 @@ fn the_twin_of_real_mimu4444_records() {
         );
         return;
     }
-    let recs: Vec<host_test::formats::Recording> = (1..=6)
+    let recs: Vec<host_test::recording::Recording> = (1..=6)
         .map(|e| {
-            let m = host_test::mimu::read(dir.join(format!("exp_{e}/data.bin"))).unwrap();
+            let m = host_test::formats::mimu::read(dir.join(format!("exp_{e}/data.bin"))).unwrap();
             let poses = detect_static(&m, &DetectOptions::default()).unwrap();
             let cal = calibrate_static(&poses, &StaticCalOptions::default()).unwrap();
             let table = cal.to_table::<{ host_test::load::MIMU_IMUS }>(e).unwrap();

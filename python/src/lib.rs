@@ -3,9 +3,9 @@
 //! library errors become `imu_cluster.Error` (a `ValueError`) carrying the library's message, as the CLI prints it.
 
 use host_test::allan::{self as allan_lib, DevKind, TauSpec};
-use host_test::formats::Recording;
 use host_test::formats::telemetry::TelemetryLog;
 use host_test::formats::telemetry::tables::{Table, Values};
+use host_test::recording::Recording;
 use host_test::{diagnose as diag, load, seedfit, sim, simcli, twin};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;

@@ -11,7 +11,7 @@
 //! the dynamic phase, e.g. a 6 s one at 621 s in exp_2).
 
 use super::{CalibError, Vec3};
-use crate::mimu::{ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, IMUS, Recording, SAMPLE_RATE_HZ};
+use crate::formats::mimu::{ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, IMUS, Recording, SAMPLE_RATE_HZ};
 
 /// Options of [`detect_static`].
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -504,7 +504,7 @@ pub fn read_calibration<const G: usize>(
 /// checked as [`read_calibration`] checks it; any other number of groups is an error saying so.
 pub fn read_calibration_any(path: impl AsRef<Path>) -> Result<CalibrationFile, CalibError> {
     const BOARD: usize = shared::wire::frame::GROUPS;
-    const MIMU: usize = crate::mimu::IMUS;
+    const MIMU: usize = crate::formats::mimu::IMUS;
     let path = path.as_ref();
     let file = parse_file(path, |b| match CalibrationFile::from_bin::<BOARD>(b) {
         Err(CalibError::Table(CalError::GroupCount(n))) if usize::from(n) == MIMU => {

@@ -26,7 +26,7 @@ use super::linalg::{
 };
 use super::report::{ResidualReport, static_residuals_mg};
 use super::{CalibError, Mat3, StaticInterval, Vec3};
-use crate::mimu::{ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS};
+use crate::formats::mimu::{ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS};
 use crate::stats::rms;
 
 mod refine;

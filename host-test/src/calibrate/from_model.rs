@@ -22,7 +22,7 @@
 use super::CalibError;
 use super::file::{CalibrationFile, GroupThermalF64};
 use super::weights::{AxisWeights, GroupsWeights, WeightOptions, solve, table_scale};
-use crate::formats::csv::SensorKind;
+use crate::recording::SensorKind;
 use crate::twin::{AxisModel, ClusterModel};
 use nalgebra::{DMatrix, Matrix3, SMatrix, Vector3};
 

@@ -4,7 +4,7 @@
 //! Two procedures:
 //!
 //! * **Multi-position static calibration** of an array of 3-axis IMUs that share one rigid board (the MIMU4444
-//!   recordings, [`crate::mimu`]): [`detect_static`] finds the static poses, [`calibrate_static`] fits each
+//!   recordings, [`crate::formats::mimu`]): [`detect_static`] finds the static poses, [`calibrate_static`] fits each
 //!   accelerometer (bias + matrix so that the static specific force is 1 g: ellipsoid fit, then
 //!   Levenberg–Marquardt; [`fit_magnitude`]), aligns all IMUs to one cluster frame (Wahba/Procrustes on the gravity
 //!   directions, [`align_cluster`]), optionally refines everything jointly with a linear bias drift in time

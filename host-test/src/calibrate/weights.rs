@@ -18,7 +18,7 @@
 //! differences.
 
 use super::CalibError;
-use crate::formats::csv::{Column, Recording, SensorKind};
+use crate::recording::{Column, Recording, SensorKind};
 use nalgebra::{DMatrix, DVector};
 
 /// Share of `S` moved to its diagonal (see the module docs).

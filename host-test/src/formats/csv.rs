@@ -19,6 +19,10 @@ use std::path::Path;
 mod parse;
 use parse::*;
 
+pub use crate::recording::{
+    AXIS_NAMES, AxisMean, Column, Recording, SensorKind, column_name, parse_column_name,
+};
+
 /// Decimals of sensor values in the files we write: 1e-9 °/s or g, four orders of magnitude below anything these
 /// tools report, and short enough for the exact fast path of [`parse_f64`].
 pub const VALUE_DECIMALS: usize = 9;
@@ -45,114 +49,6 @@ pub fn parse_f64(s: &str) -> Option<f64> {
         Some((v, end)) if end == s.len() => Some(v),
         _ => s.parse().ok(),
     }
-}
-
-/// Gyro or accelerometer.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum SensorKind {
-    /// Rate, °/s.
-    Gyro,
-    /// Specific force, g.
-    Accel,
-}
-
-impl SensorKind {
-    /// Column-name prefix (`g` / `a`).
-    pub fn prefix(self) -> char {
-        match self {
-            SensorKind::Gyro => 'g',
-            SensorKind::Accel => 'a',
-        }
-    }
-
-    /// Physical unit of the CSV column.
-    pub fn unit(self) -> &'static str {
-        match self {
-            SensorKind::Gyro => "deg/s",
-            SensorKind::Accel => "g",
-        }
-    }
-
-    /// Name used in reports ("gyro" / "accel").
-    pub fn name(self) -> &'static str {
-        match self {
-            SensorKind::Gyro => "gyro",
-            SensorKind::Accel => "accel",
-        }
-    }
-}
-
-/// Axis letters in column order.
-pub const AXIS_NAMES: [char; 3] = ['x', 'y', 'z'];
-
-/// One sensor axis of one group.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Column {
-    /// Group number (the `SS` of the name).
-    pub group: usize,
-    /// Gyro or accelerometer.
-    pub kind: SensorKind,
-    /// 0, 1, 2 for x, y, z.
-    pub axis: usize,
-    /// Samples, °/s or g.
-    pub data: Vec<f64>,
-}
-
-impl Column {
-    /// The interchange name, e.g. `g03z`.
-    pub fn name(&self) -> String {
-        column_name(self.kind, self.group, self.axis)
-    }
-}
-
-/// The equal-weight cluster mean of one sensor axis over the groups, row by row (what `adev::cluster_mean` computes
-/// from a recording; a reader that streams the file can compute it without keeping every column).
-#[derive(Clone, Debug, PartialEq)]
-pub struct AxisMean {
-    /// Gyro or accelerometer.
-    pub kind: SensorKind,
-    /// 0, 1, 2 for x, y, z.
-    pub axis: usize,
-    /// Groups averaged.
-    pub members: usize,
-    /// The mean, °/s or g, one value per sample.
-    pub data: Vec<f64>,
-}
-
-/// `g03z` for (Gyro, 3, 2).
-pub fn column_name(kind: SensorKind, group: usize, axis: usize) -> String {
-    format!(
-        "{}{:02}{}",
-        kind.prefix(),
-        group,
-        AXIS_NAMES.get(axis).copied().unwrap_or('?')
-    )
-}
-
-/// Parses `g03z` → (Gyro, 3, 2).
-pub fn parse_column_name(name: &str) -> Option<(SensorKind, usize, usize)> {
-    let kind = match name.chars().next()? {
-        'g' => SensorKind::Gyro,
-        'a' => SensorKind::Accel,
-        _ => return None,
-    };
-    let axis = AXIS_NAMES.iter().position(|&c| name.ends_with(c))?;
-    let digits = name.get(1..name.len() - 1)?;
-    if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
-        return None;
-    }
-    Some((kind, digits.parse().ok()?, axis))
-}
-
-/// A recording: time, optional temperature, sensor columns (sorted by kind, group, axis).
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Recording {
-    /// Sample times, s.
-    pub t_s: Vec<f64>,
-    /// Board temperature, °C.
-    pub temp_c: Option<Vec<f64>>,
-    /// Sensor columns.
-    pub columns: Vec<Column>,
 }
 
 /// A CSV error with its position.
@@ -264,107 +160,6 @@ enum Role {
 }
 
 impl Recording {
-    /// Number of samples.
-    pub fn len(&self) -> usize {
-        self.t_s.len()
-    }
-
-    /// No samples.
-    pub fn is_empty(&self) -> bool {
-        self.t_s.is_empty()
-    }
-
-    /// The sample interval: median of the time differences (s); `None` with fewer than 2 samples.
-    pub fn sample_interval_s(&self) -> Option<f64> {
-        let mut d: Vec<f64> = self
-            .t_s
-            .windows(2)
-            .map(|w| w[1] - w[0])
-            .filter(|d| d.is_finite())
-            .collect();
-        if d.is_empty() {
-            return None;
-        }
-        let mid = d.len() / 2;
-        // The middle element of the sorted differences, found in linear time.
-        d.select_nth_unstable_by(mid, f64::total_cmp);
-        d.get(mid).copied().filter(|&x| x > 0.0)
-    }
-
-    /// A recording from columns in group order — group 0's gyro x y z (°/s) and accel x y z (g), then group 1's, … —
-    /// sorted as the CSV reader sorts them; no temperature.
-    pub fn from_group_columns(t_s: Vec<f64>, columns: Vec<Vec<f64>>) -> Recording {
-        Self::from_indexed_columns(t_s, columns.into_iter().enumerate())
-    }
-
-    /// A recording from `(k, data)` pairs, `k` a sensor column's index in group order (as in
-    /// [`Self::from_group_columns`]; any subset, any order), sorted as the CSV reader sorts them; no temperature.
-    pub fn from_indexed_columns(
-        t_s: Vec<f64>,
-        columns: impl IntoIterator<Item = (usize, Vec<f64>)>,
-    ) -> Recording {
-        let mut columns: Vec<Column> = columns
-            .into_iter()
-            .map(|(k, data)| Column {
-                group: k / 6,
-                kind: if k % 6 < 3 {
-                    SensorKind::Gyro
-                } else {
-                    SensorKind::Accel
-                },
-                axis: k % 3,
-                data,
-            })
-            .collect();
-        columns.sort_by_key(|c| (c.kind, c.group, c.axis));
-        Recording {
-            t_s,
-            temp_c: None,
-            columns,
-        }
-    }
-
-    /// Column by name.
-    pub fn column(&self, name: &str) -> Option<&Column> {
-        self.columns.iter().find(|c| c.name() == name)
-    }
-
-    /// Groups present, sorted.
-    pub fn groups(&self) -> Vec<usize> {
-        let mut g: Vec<usize> = self.columns.iter().map(|c| c.group).collect();
-        g.sort_unstable();
-        g.dedup();
-        g
-    }
-
-    /// Keeps samples with `start_s <= t < end_s`.
-    pub fn window(&self, start_s: f64, end_s: f64) -> Recording {
-        let keep: Vec<bool> = self
-            .t_s
-            .iter()
-            .map(|&t| t >= start_s && t < end_s)
-            .collect();
-        let pick = |v: &[f64]| {
-            v.iter()
-                .zip(&keep)
-                .filter(|(_, k)| **k)
-                .map(|(x, _)| *x)
-                .collect::<Vec<f64>>()
-        };
-        Recording {
-            t_s: pick(&self.t_s),
-            temp_c: self.temp_c.as_deref().map(pick),
-            columns: self
-                .columns
-                .iter()
-                .map(|c| Column {
-                    data: pick(&c.data),
-                    ..c.clone()
-                })
-                .collect(),
-        }
-    }
-
     /// Parses CSV text; returns the recording and warnings (ignored columns).
     pub fn parse(text: &str) -> Result<(Recording, Vec<String>), CsvError> {
         Self::parse_from(text.as_bytes(), text.len() as u64, "<text>")

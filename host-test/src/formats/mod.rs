@@ -5,7 +5,6 @@
 pub mod csv;
 pub mod framelog;
 pub mod mcap;
+pub mod mimu;
 pub mod npy;
 pub mod telemetry;
-
-pub use csv::{AxisMean, Column, Recording, SensorKind};

@@ -47,7 +47,7 @@ pub struct AllanPoint {
 impl AllanPoint {
     /// The point a report gives; `None` while its level holds no difference (or its level is out of range).
     pub fn from_report(a: &AllanReport) -> Option<Self> {
-        use crate::formats::csv::{SensorKind, column_name};
+        use crate::recording::{SensorKind, column_name};
         use shared::pipeline::{FUSED_CHANNEL0, SENSOR_CHANNELS};
         let avar = a.level.avar()?;
         let channel = usize::from(a.channel);

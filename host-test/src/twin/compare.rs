@@ -18,7 +18,7 @@ use crate::allan::{
     confidence_interval,
 };
 use crate::diagnose::{scan_statistic, scan_threshold};
-use crate::formats::csv::Recording;
+use crate::recording::Recording;
 use crate::stats::median;
 
 /// Default false-alarm probability of the verdict per axis (the diagnosis's `p_false`).
@@ -257,7 +257,7 @@ pub fn compare(
             let cluster = verdict(&ca.0, &cb.0, opts);
             let typical = verdict(&ca.1, &cb.1, opts);
             axes.push(AxisComparison {
-                axis: format!("{}{}", kind.prefix(), crate::formats::csv::AXIS_NAMES[axis]),
+                axis: format!("{}{}", kind.prefix(), crate::recording::AXIS_NAMES[axis]),
                 sensors: [na, nb],
                 significant: cluster.significant || typical.significant,
                 cluster,

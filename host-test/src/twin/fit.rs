@@ -18,7 +18,7 @@ use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, Ta
 use crate::diagnose::median_to_mean;
 use crate::diagnose::model::{Cross, Terms};
 use crate::diagnose::{AxisFit, Report};
-use crate::formats::csv::Recording;
+use crate::recording::Recording;
 use crate::stats::median;
 
 /// Harmonics that explain less than this share of what remains are not kept.
@@ -84,7 +84,7 @@ fn fit_axis(
     let label = format!(
         "{}{}",
         af.kind.prefix(),
-        crate::formats::csv::AXIS_NAMES[af.axis]
+        crate::recording::AXIS_NAMES[af.axis]
     );
     let series: Vec<&[f64]> = af
         .groups

@@ -12,8 +12,8 @@ pub mod compare;
 pub mod fit;
 pub mod play;
 
-use crate::formats::csv::SensorKind;
 use crate::noisefit::FLICKER_AVAR;
+use crate::recording::SensorKind;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -194,9 +194,7 @@ pub fn parse_axis(name: &str) -> Option<(SensorKind, usize)> {
         _ => return None,
     };
     let ch = c.next()?;
-    let axis = crate::formats::csv::AXIS_NAMES
-        .iter()
-        .position(|&a| a == ch)?;
+    let axis = crate::recording::AXIS_NAMES.iter().position(|&a| a == ch)?;
     c.next().is_none().then_some((kind, axis))
 }
 
@@ -405,7 +403,7 @@ pub struct LoopSummary {
 /// played with and without effects (noise seed `seed`), each compared with the recording (`dir/compare-with.json`,
 /// `dir/compare-without.json`, and the plot of the first, `dir/compare.png`). What `ground demo` shows.
 pub fn close_the_loop(
-    rec: &crate::formats::csv::Recording,
+    rec: &crate::recording::Recording,
     report: &crate::diagnose::Report,
     source: &str,
     dir: &Path,

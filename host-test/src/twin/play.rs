@@ -5,7 +5,7 @@
 //! the diagnosis starts from.
 
 use super::*;
-use crate::formats::csv::{Column, Recording};
+use crate::recording::{Column, Recording};
 use crate::sim::noise::{NoiseParams, Sampling, SensorNoise};
 
 /// What to play.

@@ -154,10 +154,10 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-fn unit_scale(kind: host_test::formats::SensorKind) -> (&'static str, f64) {
+fn unit_scale(kind: host_test::recording::SensorKind) -> (&'static str, f64) {
     match kind {
-        host_test::formats::SensorKind::Gyro => ("°/h", 3600.0),
-        host_test::formats::SensorKind::Accel => ("µg", 1e6),
+        host_test::recording::SensorKind::Gyro => ("°/h", 3600.0),
+        host_test::recording::SensorKind::Accel => ("µg", 1e6),
     }
 }
 
@@ -166,8 +166,8 @@ fn print_summary(series: &[adev::Series]) {
     for s in series.iter().filter(|s| s.group.is_none()) {
         let (u, k) = unit_scale(s.kind);
         let (du, dk) = match s.kind {
-            host_test::formats::SensorKind::Gyro => ("°/√h", 60.0),
-            host_test::formats::SensorKind::Accel => ("µg/√Hz", 1e6),
+            host_test::recording::SensorKind::Gyro => ("°/√h", 60.0),
+            host_test::recording::SensorKind::Accel => ("µg/√Hz", 1e6),
         };
         let m = s.minimum();
         println!(

@@ -101,9 +101,9 @@ fn run_static(a: &Args, rec: &std::path::Path) -> Result<()> {
         self as cal, BiasModel, BiasOptions, DetectOptions, StaticCalOptions,
     };
     let cerr = |e: cal::CalibError| anyhow::anyhow!("{e}");
-    let m = host_test::mimu::read(rec).map_err(|e| match e {
+    let m = host_test::formats::mimu::read(rec).map_err(|e| match e {
         // The I/O error names the file already.
-        host_test::mimu::MimuError::Io { .. } => anyhow::anyhow!("{e}"),
+        host_test::formats::mimu::MimuError::Io { .. } => anyhow::anyhow!("{e}"),
         _ => anyhow::anyhow!("{}: {e}", rec.display()),
     })?;
     let detect = DetectOptions {

@@ -94,7 +94,7 @@ pub fn parse_window(s: &str) -> Result<(f64, f64)> {
 }
 
 /// Applies `--window` to a loaded recording; fewer than two samples left is an error.
-pub fn apply_window(rec: &mut host_test::formats::Recording, window: &str) -> Result<()> {
+pub fn apply_window(rec: &mut host_test::recording::Recording, window: &str) -> Result<()> {
     let (s, e) = parse_window(window)?;
     let span = (
         rec.t_s.first().copied().unwrap_or(f64::NAN),

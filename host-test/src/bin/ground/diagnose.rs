@@ -58,7 +58,7 @@ pub fn run(a: Args) -> Result<()> {
         apply_window(&mut loaded.recording, w)?;
     }
     if a.longest_static {
-        let m = host_test::mimu::read(&a.recording)
+        let m = host_test::formats::mimu::read(&a.recording)
             .map_err(|e| anyhow::anyhow!("--longest-static needs a MIMU4444 stream: {e}"))?;
         let poses = host_test::calibrate::detect_static(&m, &Default::default())
             .map_err(|e| anyhow::anyhow!("{e}"))?;

@@ -5,7 +5,7 @@ use shared::calib::{CalibrationTable, RawCounts};
 
 use super::rms;
 use crate::calibrate::*;
-use crate::mimu::{self, FRAME_LEN};
+use crate::formats::mimu::{self, FRAME_LEN};
 
 const SLICE_STARTS: [usize; 12] = [
     2270, 3730, 6723, 8230, 11306, 12806, 14295, 17528, 20584, 25154, 28301, 30038,

@@ -4,7 +4,7 @@
 use std::sync::OnceLock;
 
 use crate::calibrate::*;
-use crate::mimu;
+use crate::formats::mimu;
 use crate::stats::{median, rms};
 
 /// Static intervals of exp_1 … exp_6 with the default detection (`None` without the data).
