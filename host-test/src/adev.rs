@@ -192,25 +192,33 @@ pub fn analyze_with_means(
         }
     }
     let options = Options::default();
+    // One workspace per thread at a time, kept for the next series: rayon's `map_init` would make one per piece of
+    // work it splits off, and each new one faults in fresh pages for its phase and block means.
+    let pool = std::sync::Mutex::new(Vec::<Analyzer>::new());
     let out = jobs
         .into_par_iter()
-        .map_init(
-            Analyzer::new,
-            |an, (label, kind, axis, group, members, data)| {
-                let points = an.analyze(req.kind, &data, tau0, &req.taus, &options);
-                let fit = noisefit::fit(&points);
-                tick();
-                Series {
-                    label,
-                    kind,
-                    axis,
-                    group,
-                    members,
-                    points,
-                    fit,
-                }
-            },
-        )
+        .map(|(label, kind, axis, group, members, data)| {
+            let mut an = pool
+                .lock()
+                .ok()
+                .and_then(|mut p| p.pop())
+                .unwrap_or_default();
+            let points = an.analyze(req.kind, &data, tau0, &req.taus, &options);
+            if let Ok(mut p) = pool.lock() {
+                p.push(an);
+            }
+            let fit = noisefit::fit(&points);
+            tick();
+            Series {
+                label,
+                kind,
+                axis,
+                group,
+                members,
+                points,
+                fit,
+            }
+        })
         .collect();
     Ok(out)
 }

@@ -1,6 +1,6 @@
 //! Full per-τ analysis: deviation + noise type + EDF + confidence interval.
 
-use super::ci::{ONE_SIGMA_CI, confidence_interval};
+use super::ci::{ONE_SIGMA_CI, chi2_quantiles, interval_from_quantiles};
 use super::deviation::{DevKind, Phase};
 use super::edf::edf_for_kind;
 use super::noise::{AcfFlavor, NoiseId, noise_id_pyramid};
@@ -69,7 +69,15 @@ pub struct Analyzer {
     scratch: Vec<f64>,
     /// Block means of the current series at m = 2^k (level k), built pairwise as needed.
     pyramid: Vec<Vec<f64>>,
+    /// The χ² quantiles of the intervals met so far, by the bits of (EDF, confidence): columns of one recording
+    /// share their EDFs (an EDF depends on the noise type, `m` and `N` only), and each quantile is an iterative
+    /// solution of the incomplete gamma function.
+    /// At most [`QUANTILES_KEPT`] of them (`--taus all` on a long record has an EDF per factor).
+    quantiles: std::collections::HashMap<(u64, u64), Option<(f64, f64)>>,
 }
+
+/// How many χ² quantile pairs an [`Analyzer`] keeps (octave τs: ≤ 5 noise types × ≈ 20 factors per length).
+const QUANTILES_KEPT: usize = 1024;
 
 impl Analyzer {
     /// New empty workspace.
@@ -111,13 +119,14 @@ impl Analyzer {
                 (1, _) => y,
                 (_, Some(prev)) => prev.as_slice(),
             };
-            level.extend(prev.chunks_exact(2).map(|p| 0.5 * (p[0] + p[1])));
+            pair_means(prev, level);
         }
         let carry_limit = 2 * kind.stable32_stop_ratio();
         let mut out = Vec::with_capacity(ms.len());
         let mut prev_alpha: Option<i32> = None;
-        for m in ms {
-            let Some(p) = self.phase.deviation(kind, m) else {
+        let devs = self.phase.deviations(kind, &ms);
+        for (m, dev) in ms.into_iter().zip(devs) {
+            let Some(p) = dev else {
                 continue;
             };
             let noise = match opts.fixed_alpha {
@@ -143,7 +152,10 @@ impl Analyzer {
                 prev_alpha = Some(nz.alpha);
             }
             let edf = noise.and_then(|nz| edf_for_kind(kind, nz.alpha, m, n_samples));
-            let ci = edf.and_then(|e| confidence_interval(p.dev, e, opts.confidence));
+            let ci = edf.and_then(|e| {
+                let q = self.quantiles(e, opts.confidence)?;
+                interval_from_quantiles(p.dev, e, q)
+            });
             out.push(AnalysisPoint {
                 m,
                 tau_s: p.tau_s,
@@ -159,6 +171,28 @@ impl Analyzer {
     }
 }
 
+impl Analyzer {
+    /// [`chi2_quantiles`], kept for the next series.
+    fn quantiles(&mut self, edf: f64, confidence: f64) -> Option<(f64, f64)> {
+        let key = (edf.to_bits(), confidence.to_bits());
+        if let Some(q) = self.quantiles.get(&key) {
+            return *q;
+        }
+        let q = chi2_quantiles(edf, confidence);
+        if self.quantiles.len() < QUANTILES_KEPT {
+            self.quantiles.insert(key, q);
+        }
+        q
+    }
+}
+
+/// Appends to `out` the means of the pairs of `prev` (an odd last value dropped). Compiled also for AVX2 and chosen
+/// at run time (the same operations: the same bits).
+#[multiversion::multiversion(targets("x86_64+avx2"))]
+fn pair_means(prev: &[f64], out: &mut Vec<f64>) {
+    out.extend(prev.chunks_exact(2).map(|p| 0.5 * (p[0] + p[1])));
+}
+
 /// One-shot [`Analyzer::analyze`].
 pub fn analyze(
     kind: DevKind,
@@ -172,6 +206,7 @@ pub fn analyze(
 
 #[cfg(test)]
 mod tests {
+    use super::super::ci::confidence_interval;
     use super::*;
 
     #[test]
@@ -199,6 +234,44 @@ mod tests {
             assert_eq!(p.dev, 0.0);
             assert!(p.noise.is_none() && p.edf.is_none() && p.dev_lo.is_none());
         }
+    }
+
+    #[test]
+    fn a_reused_analyzer_gives_the_same_bits_as_fresh_ones() {
+        // Two series of the same length (the second re-uses the first's kept quantiles), then one of another length.
+        let series: Vec<Vec<f64>> = [(5000, 1), (5000, 2), (3001, 3)]
+            .into_iter()
+            .map(|(n, seed)| crate::testrng::TestRng::new(seed).normals(n, 1.0))
+            .collect();
+        let o = Options::default();
+        let mut reused = Analyzer::new();
+        for y in &series {
+            let again = reused.analyze(DevKind::Oadev, y, 0.1, &TauSpec::Octave, &o);
+            let fresh = analyze(DevKind::Oadev, y, 0.1, &TauSpec::Octave, &o);
+            let bits = |p: &[AnalysisPoint]| -> Vec<_> {
+                p.iter()
+                    .map(|p| {
+                        (
+                            p.m,
+                            p.dev.to_bits(),
+                            p.edf.map(f64::to_bits),
+                            p.dev_lo.map(f64::to_bits),
+                            p.dev_hi.map(f64::to_bits),
+                        )
+                    })
+                    .collect()
+            };
+            assert_eq!(bits(&again), bits(&fresh));
+            assert!(fresh.iter().filter(|p| p.dev_lo.is_some()).count() >= 8);
+            // The intervals are those of the public one-shot function.
+            for p in &fresh {
+                let ci = p
+                    .edf
+                    .and_then(|e| confidence_interval(p.dev, e, o.confidence));
+                assert_eq!(ci, p.dev_lo.zip(p.dev_hi));
+            }
+        }
+        assert!(!reused.quantiles.is_empty());
     }
 
     #[test]

@@ -19,7 +19,17 @@ pub const ONE_SIGMA_CI: f64 = 0.682_689_492_137_085_9;
 /// `edf` not positive and finite, `ci` not strictly between 0 and 1, or the quantiles
 /// are numerically degenerate.
 pub fn confidence_interval(dev: f64, edf: f64, ci: f64) -> Option<(f64, f64)> {
-    if !(dev.is_finite() && dev >= 0.0 && edf.is_finite() && edf > 0.0) {
+    if !(dev.is_finite() && dev >= 0.0) {
+        return None;
+    }
+    interval_from_quantiles(dev, edf, chi2_quantiles(edf, ci)?)
+}
+
+/// The χ² quantiles `(χ²⁻¹(p_lo; edf), χ²⁻¹(p_hi; edf))` of [`confidence_interval`]: they depend on `edf` and `ci`
+/// only, so a caller with many deviations of the same EDF (the columns of one recording) can keep them. `None` as
+/// for [`confidence_interval`].
+pub(crate) fn chi2_quantiles(edf: f64, ci: f64) -> Option<(f64, f64)> {
+    if !(edf.is_finite() && edf > 0.0) {
         return None;
     }
     if !(ci > 0.0 && ci < 1.0) {
@@ -30,7 +40,16 @@ pub fn confidence_interval(dev: f64, edf: f64, ci: f64) -> Option<(f64, f64)> {
     let chi2 = ChiSquared::new(edf).ok()?;
     let q_lo = chi2_quantile(&chi2, p_lo)?;
     let q_hi = chi2_quantile(&chi2, p_hi)?;
-    if !(q_lo > 0.0 && q_hi.is_finite()) {
+    (q_lo > 0.0 && q_hi.is_finite()).then_some((q_lo, q_hi))
+}
+
+/// [`confidence_interval`] of `dev` from the quantiles [`chi2_quantiles`] gives for `edf`.
+pub(crate) fn interval_from_quantiles(
+    dev: f64,
+    edf: f64,
+    (q_lo, q_hi): (f64, f64),
+) -> Option<(f64, f64)> {
+    if !(dev.is_finite() && dev >= 0.0) {
         return None;
     }
     let var = dev * dev;

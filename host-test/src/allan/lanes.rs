@@ -2,15 +2,19 @@
 //! before the next (a few cycles per element); eight chains keep the vector units busy, so these loops run at the
 //! speed of their loads. The order of summation differs from a serial loop, which moves results at the 1e-16
 //! relative level.
+//!
+//! Where such a sum is a hot loop of its own (`sum`; the lag-1 autocorrelation in `noise`; the OADEV pass in
+//! `overlap`), it is also compiled for AVX2 and chosen at run time: the same additions in the same order on wider
+//! registers, so the same bits (Rust never fuses a multiplication and an addition by itself).
 
 /// Partial sums per loop.
-const LANES: usize = 8;
+pub(super) const LANES: usize = 8;
 
 /// The partial sums added pairwise, lane k with lane k + 4 first: the order of a vertical reduction of 2-lane
 /// vectors, so the compiler keeps neighbouring lanes in one register (pairing k with k + 1 made it shuffle every
 /// load: a third more instructions in the OADEV pass).
 #[inline(always)]
-fn combine(a: [f64; LANES]) -> f64 {
+pub(super) fn combine(a: [f64; LANES]) -> f64 {
     let [a0, a1, a2, a3, a4, a5, a6, a7] = a;
     ((a0 + a4) + (a2 + a6)) + ((a1 + a5) + (a3 + a7))
 }
@@ -69,7 +73,8 @@ pub(crate) fn sum2_pair(a: &[f64], b: &[f64], f: impl Fn(f64, f64) -> (f64, f64)
     (u, v)
 }
 
-/// `Σ x_i`.
+/// `Σ x_i`. Compiled also for AVX2 and chosen at run time (wider registers, the same operations: the same bits).
+#[multiversion::multiversion(targets("x86_64+avx2"))]
 pub(crate) fn sum(x: &[f64]) -> f64 {
     sum3(x, x, x, |v, _, _| v)
 }

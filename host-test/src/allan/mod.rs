@@ -42,6 +42,7 @@ mod deviation;
 mod edf;
 mod lanes;
 mod noise;
+mod overlap;
 mod taus;
 
 pub use analysis::{AnalysisPoint, Analyzer, Options, analyze};

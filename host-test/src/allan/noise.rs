@@ -232,6 +232,7 @@ fn detrend_linear(z: &mut [f64]) {
 }
 
 /// `r1 = Σ (z_i − z̄)(z_{i+1} − z̄) / Σ (z_i − z̄)²`, times `(n−1)/n` if `scaled`.
+#[multiversion::multiversion(targets("x86_64+avx2"))]
 fn lag1_autocorrelation(z: &[f64], scaled: bool) -> Option<f64> {
     let n = z.len();
     if n < 2 {

@@ -482,10 +482,10 @@ impl<'a> NpyArray<'a> {
                 if g == 0 {
                     chunk.copy_from_slice(c);
                 } else {
-                    chunk.iter_mut().zip(c).for_each(|(s, x)| *s += x);
+                    add_to(chunk, c);
                 }
             }
-            chunk.iter_mut().for_each(|s| *s /= groups as f64);
+            divide(chunk, groups as f64);
         }
     }
 
@@ -532,11 +532,9 @@ fn note_bad<C: AsRef<[f64]>>(
     cols: &[C],
     row0: usize,
 ) {
-    // `fold`, not `all`: no early exit, so the common case (all finite) is vectorised.
-    let finite = |c: &[f64]| c.iter().fold(true, |ok, x| ok & x.is_finite());
     for (&j, c) in index.iter().zip(cols) {
         let c = c.as_ref();
-        if finite(c) {
+        if all_finite(c) {
             continue;
         }
         let Some(i) = c.iter().position(|x| !x.is_finite()) else {
@@ -548,6 +546,25 @@ fn note_bad<C: AsRef<[f64]>>(
         }
         return;
     }
+}
+
+/// Whether every value is finite. `fold`, not `all`: no early exit, so the common case (all finite) is vectorised;
+/// compiled also for AVX2 and chosen at run time.
+#[multiversion::multiversion(targets("x86_64+avx2"))]
+fn all_finite(c: &[f64]) -> bool {
+    c.iter().fold(true, |ok, x| ok & x.is_finite())
+}
+
+/// `sums[i] += c[i]`; compiled also for AVX2 (the same additions, the same bits).
+#[multiversion::multiversion(targets("x86_64+avx2"))]
+fn add_to(sums: &mut [f64], c: &[f64]) {
+    sums.iter_mut().zip(c).for_each(|(s, x)| *s += x);
+}
+
+/// `sums[i] /= n`; compiled also for AVX2 (the same divisions, the same bits).
+#[multiversion::multiversion(targets("x86_64+avx2"))]
+fn divide(sums: &mut [f64], n: f64) {
+    sums.iter_mut().for_each(|s| *s /= n);
 }
 
 /// Reads a whole `.npy` file (see module docs).
