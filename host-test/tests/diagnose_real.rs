@@ -36,7 +36,15 @@ fn diagnose_real_mimu4444_records() {
         let effects: Vec<String> = r
             .effects
             .iter()
-            .map(|x| format!("{} {} {}", x.kind, x.sensor, x.axes))
+            .map(|x| {
+                let periods: Vec<String> = x
+                    .params
+                    .values()
+                    .filter_map(|p| p["period_s"].as_f64())
+                    .map(|p| format!("{p:.3}"))
+                    .collect();
+                format!("{} {} {} {}", x.kind, x.sensor, x.axes, periods.join("/"))
+            })
             .collect();
         let misfit: Vec<String> = r
             .axes

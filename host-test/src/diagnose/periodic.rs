@@ -164,7 +164,7 @@ pub(super) fn strongest(z: &[f64], b: usize, tau0: f64, tests: f64, p_false: f64
         .max_by(|a, b| a.1.total_cmp(&b.1))?;
     let freqs = (k_max - k_min) as f64 / pad;
     let threshold = threshold(freqs * tests, bins, p_false);
-    if !(score > threshold) {
+    if score.is_nan() || score <= threshold {
         return None;
     }
     // Refine: the Hann power on a fine grid of ± one padded bin (cycles per block).

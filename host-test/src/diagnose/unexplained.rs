@@ -57,9 +57,9 @@ pub(super) fn effect(
         .iter()
         .enumerate()
         .filter(|(i, c)| {
-            !st.chosen.contains(i)
-                && !refs.iter().any(|r| r.kind == c.kind)
-                && !(c.level.is_some() && refs.iter().any(|r| r.level.is_some()))
+            let same_kind = refs.iter().any(|r| r.kind == c.kind);
+            let second_level = c.level.is_some() && refs.iter().any(|r| r.level.is_some());
+            !(st.chosen.contains(i) || same_kind || second_level)
         })
         .map(|(_, c)| {
             let mut with = refs.clone();
