@@ -360,29 +360,7 @@ impl EffectArgs {
             });
         }
         for s in &self.periodic {
-            let usage = "--periodic [GROUP/]AXES:AMPLITUDE:PERIOD_S";
-            let (groups, rest) = match s.split_once('/') {
-                Some((g, rest)) => (
-                    Some(vec![
-                        g.parse()
-                            .with_context(|| format!("--periodic group '{g}'"))?,
-                    ]),
-                    rest,
-                ),
-                None => (None, s.as_str()),
-            };
-            let (axes, rest) = rest.split_once(':').context(usage)?;
-            let v = nums(rest, "--periodic", 2..=2)?;
-            if !(v[1].is_finite() && v[1] > 0.0) {
-                bail!("{usage}: PERIOD_S must be > 0, found {}", v[1]);
-            }
-            cfg.periodic.push(Periodic {
-                groups,
-                axes: parse_axes(axes)?,
-                amplitude: v[0],
-                period_s: v[1],
-                phase_rad: 0.0,
-            });
+            cfg.periodic.push(parse_periodic(s)?);
         }
         for s in &self.thermal {
             let (axes, rest) = s.split_once(':').context("--thermal AXES:COEF[:SD]")?;
@@ -429,6 +407,33 @@ impl EffectArgs {
         }
         Ok(())
     }
+}
+
+/// One `--periodic [GROUP/]AXES:AMPLITUDE:PERIOD_S` (without GROUP/ every group).
+fn parse_periodic(s: &str) -> Result<Periodic> {
+    let usage = "--periodic [GROUP/]AXES:AMPLITUDE:PERIOD_S";
+    let (groups, rest) = match s.split_once('/') {
+        Some((g, rest)) => (
+            Some(vec![
+                g.parse()
+                    .with_context(|| format!("--periodic group '{g}'"))?,
+            ]),
+            rest,
+        ),
+        None => (None, s),
+    };
+    let (axes, rest) = rest.split_once(':').context(usage)?;
+    let v = nums(rest, "--periodic", 2..=2)?;
+    if !(v[1].is_finite() && v[1] > 0.0) {
+        bail!("{usage}: PERIOD_S must be > 0, found {}", v[1]);
+    }
+    Ok(Periodic {
+        groups,
+        axes: parse_axes(axes)?,
+        amplitude: v[0],
+        period_s: v[1],
+        phase_rad: 0.0,
+    })
 }
 
 /// Writes a simulation to `path`: `.bin` frame log (raw ADC codes through the true calibration, the FPGA's wire
