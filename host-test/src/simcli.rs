@@ -3,7 +3,7 @@
 
 use crate::sim::{
     Axis, CalSpread, Channel, Chunk, CommonDrift, CommonMode, DriftKind, FrameOpts, Outlier,
-    PartSpread, SimConfig, Simulator, Thermal, csv_header,
+    PartSpread, Periodic, SimConfig, Simulator, Thermal, csv_header,
 };
 use anyhow::{Context, Result, bail};
 use std::io::Write;
@@ -266,6 +266,10 @@ pub struct EffectArgs {
     /// e.g. 7/ay:2e-6. (A bias step on one sensor: `--outlier GROUP:CHANNEL:1:STEP:STEP_AT_S`.)
     #[arg(long = "sensor-drift")]
     pub sensor_drift: Vec<String>,
+    /// A sinusoidal interference A·sin(2πt/P): [GROUP/]AXES:AMPLITUDE:PERIOD_S (amplitude in °/s or g); without
+    /// GROUP/ every group (common mode), e.g. gx:2e-4:600; with it one group's own, e.g. 7/ay:1e-4:90.
+    #[arg(long)]
+    pub periodic: Vec<String>,
     /// Temperature-driven bias of each raw channel: AXES:COEF[:SD], COEF in (°/s)/°C or g/°C, SD the spread between
     /// parts (repeatable: gyro and accel together); zero at 20 °C; board temperature from --temperature, else
     /// 20 °C ± 2 °C over 2 h plus 1 °C/h.
@@ -293,6 +297,7 @@ impl EffectArgs {
             && self.block.is_empty()
             && self.drift.is_empty()
             && self.sensor_drift.is_empty()
+            && self.periodic.is_empty()
             && self.thermal.is_empty()
             && self.temperature.is_none()
             && self.outlier.is_empty()
@@ -354,6 +359,9 @@ impl EffectArgs {
                 kind: DriftKind::RandomWalk { k },
             });
         }
+        for s in &self.periodic {
+            cfg.periodic.push(parse_periodic(s)?);
+        }
         for s in &self.thermal {
             let (axes, rest) = s.split_once(':').context("--thermal AXES:COEF[:SD]")?;
             let v = nums(rest, "--thermal", 1..=2)?;
@@ -399,6 +407,33 @@ impl EffectArgs {
         }
         Ok(())
     }
+}
+
+/// One `--periodic [GROUP/]AXES:AMPLITUDE:PERIOD_S` (without GROUP/ every group).
+fn parse_periodic(s: &str) -> Result<Periodic> {
+    let usage = "--periodic [GROUP/]AXES:AMPLITUDE:PERIOD_S";
+    let (groups, rest) = match s.split_once('/') {
+        Some((g, rest)) => (
+            Some(vec![
+                g.parse()
+                    .with_context(|| format!("--periodic group '{g}'"))?,
+            ]),
+            rest,
+        ),
+        None => (None, s),
+    };
+    let (axes, rest) = rest.split_once(':').context(usage)?;
+    let v = nums(rest, "--periodic", 2..=2)?;
+    if !(v[1].is_finite() && v[1] > 0.0) {
+        bail!("{usage}: PERIOD_S must be > 0, found {}", v[1]);
+    }
+    Ok(Periodic {
+        groups,
+        axes: parse_axes(axes)?,
+        amplitude: v[0],
+        period_s: v[1],
+        phase_rad: 0.0,
+    })
 }
 
 /// Writes a simulation to `path`: `.bin` frame log (raw ADC codes through the true calibration, the FPGA's wire

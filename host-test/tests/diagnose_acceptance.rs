@@ -11,7 +11,7 @@ use common::effects::*;
 use host_test::diagnose::{Effect, Groups, Options, Report, diagnose};
 use host_test::recording::Recording;
 use host_test::sim::{
-    Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, SimConfig,
+    Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, Periodic, SimConfig,
 };
 use host_test::simcli::recording;
 
@@ -353,4 +353,87 @@ fn one_gyros_bias_step_is_found_with_its_time_and_size() {
         "at {t} s vs {at} s (window {window} s)"
     );
     assert!((size / 0.1 - 1.0).abs() < 0.2, "size {size} vs 0.1");
+}
+
+/// The peak of a sinusoid's Allan variance, `max sin⁴(x)/x²` = 0.5250 A² at πτ/P = 1.1656.
+const SINE_PEAK: f64 = 0.525;
+const SINE_PEAK_X: f64 = 1.165_561;
+
+#[test]
+fn shared_sinusoid_on_gyro_x_is_periodic_with_its_period() {
+    let mut cfg = config(SEED + 22);
+    // Period 600 s on gyro x of every group; at its Allan-variance peak (τ ≈ 223 s) it adds 3× the cluster's AVAR
+    // there (cluster ADEV ×2), a sixteenth of that to a single sensor's.
+    let period = 600.0;
+    let tau_peak = SINE_PEAK_X * period / std::f64::consts::PI;
+    let amp = (3.0 * cluster_avar(&cfg, Channel::GyroAX, tau_peak) / SINE_PEAK).sqrt();
+    cfg.periodic.push(Periodic {
+        groups: None,
+        axes: vec![Axis::GyroX],
+        amplitude: amp,
+        period_s: period,
+        phase_rad: 0.7,
+    });
+    let r = run(cfg, true);
+    let e = only(&r, "periodic");
+    assert_eq!(
+        (e.sensor.as_str(), e.axes.as_str(), &e.groups),
+        ("gyro", "x", &all16())
+    );
+    assert_eq!(e.region, "periodic");
+    let p = &e.params["x"];
+    let (got_p, got_a) = (
+        p["period_s"].as_f64().unwrap(),
+        p["amplitude"].as_f64().unwrap(),
+    );
+    assert!(
+        (got_p / period - 1.0).abs() < 0.01,
+        "period {got_p} s vs {period} s"
+    );
+    assert!(
+        (got_a / amp - 1.0).abs() < 0.2,
+        "amplitude {got_a} vs {amp}"
+    );
+    shrinks(&r);
+}
+
+#[test]
+fn one_accelerometers_sinusoid_is_its_own_periodic() {
+    let mut cfg = config(SEED + 23);
+    // Group 7's accel y alone: period 90 s, 3× its own AVAR at the sinusoid's peak (τ ≈ 33 s).
+    let period = 90.0;
+    let tau_peak = SINE_PEAK_X * period / std::f64::consts::PI;
+    let single = 16.0 * cluster_avar(&cfg, Channel::AccelY, tau_peak);
+    let amp = (3.0 * single / SINE_PEAK).sqrt();
+    cfg.periodic.push(Periodic {
+        groups: Some(vec![7]),
+        axes: vec![Axis::AccelY],
+        amplitude: amp,
+        period_s: period,
+        phase_rad: 0.0,
+    });
+    let r = run(cfg, true);
+    let e = only(&r, "periodic");
+    assert_eq!(
+        (e.sensor.as_str(), e.axes.as_str(), &e.groups),
+        ("accel", "y", &Groups::List(vec![7]))
+    );
+    let p = &e.params["y"]["sensors"]["7"];
+    let (got_p, got_a) = (
+        p["period_s"].as_f64().unwrap(),
+        p["amplitude"].as_f64().unwrap(),
+    );
+    assert!(
+        (got_p / period - 1.0).abs() < 0.01,
+        "period {got_p} s vs {period} s"
+    );
+    assert!(
+        (got_a / amp - 1.0).abs() < 0.2,
+        "amplitude {got_a} vs {amp}"
+    );
+    assert!(
+        r.heldout.gap_after <= r.heldout.gap_before,
+        "{:?}",
+        r.heldout
+    );
 }

@@ -20,7 +20,7 @@ impl Candidate {
         self.cross.iter().find_map(|c| match c {
             Cross::Shared { share, .. } => Some(share.part),
             Cross::Own { part, .. } => Some(*part),
-            Cross::Thermal { .. } => None,
+            Cross::Thermal { .. } | Cross::SharedSine { .. } | Cross::OwnSine { .. } => None,
         })
     }
 
@@ -202,7 +202,8 @@ pub(super) fn thermal_betas(series: &[&[f64]], temp: &[f64], block: usize) -> Ve
         .collect()
 }
 
-/// The candidates of one axis, all fitted on the first half: levels, blocks, a process shared by all, thermal.
+/// The candidates of one axis, all fitted on the first half: levels, blocks, one sensor's drift, a process shared
+/// by all, a periodic interference (one sensor's own lines `own`, found beforehand, or a shared line), thermal.
 #[allow(clippy::too_many_arguments)] // the first half's data, statistics and model, each used; no natural bundle
 pub(super) fn candidates(
     an: &mut Analyzer,
@@ -213,6 +214,7 @@ pub(super) fn candidates(
     temp: Option<&[f64]>,
     typ: &Terms,
     opts: &Options,
+    own: &[periodic::OwnLine],
 ) -> Vec<Candidate> {
     let ns = first.len();
     let mut cands: Vec<Candidate> = level_candidate(w, hf, ns).into_iter().collect();
@@ -223,13 +225,28 @@ pub(super) fn candidates(
     }
     // One sensor's departure at long τ is its own (`sensor_drift`), and is kept out of the shared fits: a shared
     // process shows in the cross covariances, one sensor's does not.
-    let deps = departures(an, first, hf, tau0, opts);
+    // A sensor with its own (confirmed) line is `periodic`, not a drift, and is kept out of the shared fits too.
+    let lined: Vec<usize> = own
+        .iter()
+        .filter(|o| o.heldout_score > o.heldout_threshold)
+        .map(|o| o.sensor)
+        .collect();
+    let mut deps = departures(an, first, hf, tau0, opts);
+    deps.retain(|d| !lined.contains(&d.sensor));
     cands.extend(drift_candidate(w, &deps));
     let members: Vec<usize> = (0..ns)
-        .filter(|i| !deps.iter().any(|d| d.sensor == *i))
+        .filter(|i| !deps.iter().any(|d| d.sensor == *i) && !lined.contains(i))
         .collect();
     cands.extend(shared_candidates(
         an, w, first, hf, tau0, temp, partial, &members,
+    ));
+    cands.extend(periodic::periodic_candidates(
+        w,
+        first,
+        own,
+        &members,
+        tau0,
+        opts.p_false,
     ));
     if let Some(t) = temp {
         cands.push(thermal_candidate(w, first, t, tau0));

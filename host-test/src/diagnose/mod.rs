@@ -26,6 +26,7 @@
 pub mod acov;
 mod candidates;
 pub mod model;
+mod periodic;
 mod prediction;
 pub use prediction::{scan_statistic, scan_threshold};
 pub(crate) use singles::median_to_mean;
@@ -35,6 +36,7 @@ mod sensors;
 mod singles;
 pub mod steps;
 mod summary;
+mod unexplained;
 
 use crate::allan::edf_for_kind;
 use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, TauSpec};
@@ -150,7 +152,8 @@ impl std::fmt::Display for Groups {
 #[derive(Clone, Debug, Serialize)]
 pub struct Effect {
     /// `common_mode`, `block_common_mode`, `common_mode_drift`, `thermal`, `outlier_sensor`, `unequal_noise`,
-    /// `sensor_drift` (one sensor's own slow drift), `bias_step` (one sensor's bias jump).
+    /// `sensor_drift` (one sensor's own slow drift), `bias_step` (one sensor's bias jump), `periodic` (a sinusoidal
+    /// interference, shared or one sensor's own: `params.<axis>.period_s`, `amplitude`).
     pub kind: String,
     /// `gyro` or `accel`.
     pub sensor: String,
@@ -159,7 +162,7 @@ pub struct Effect {
     /// Groups concerned (0-based; all for cluster-wide effects; a list per block for `block_common_mode`).
     pub groups: Groups,
     /// Where it acts most: `quantization`, `white`, `flicker` or `random_walk` (the typical sensor's dominant term
-    /// at `tau_at_max_s`).
+    /// at `tau_at_max_s`), `periodic` for a sinusoid, `step` for a bias step.
     pub region: String,
     /// τ range, s, over which it accounts for at least half of its largest share of the cluster variance.
     pub tau_s: [f64; 2],
@@ -449,6 +452,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
         curves,
         fitted,
         gaps,
+        unexplained,
     } = out;
     Ok(Report {
         gap_before: rms(gaps.fit_before),
@@ -462,6 +466,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
         effects: merge_effects(effects)
             .into_iter()
             .chain(step_effects(&works, &found, tau0))
+            .chain(unexplained)
             .collect(),
         axes,
         samples: n,
@@ -572,6 +577,7 @@ fn analyse_axis(
         &pts_held,
         temp.map(|t| &t[half..]),
     );
+    let own = periodic::own_lines(&first, &second, tau0, opts.p_false);
     let cands = candidates(
         an,
         w,
@@ -581,10 +587,16 @@ fn analyse_axis(
         temp.map(|t| &t[..half]),
         &typ_terms,
         opts,
+        &own,
     );
     let hw = Half::measure(an, &w.series, &wts, tau0, mb, &typ_terms, &pts_whole, temp);
     let thr = threshold(thresholds, hw.len(), opts.p_false);
     let mut chosen = select(&cands, &hw, &hh, &wts, opts, thr, None);
+    // Effects that together remove less than half of the held-out excess are not named: the gap is `unexplained`.
+    let gave_up = !unexplained::enough(&cands, &chosen, &hh, &wts, opts);
+    if gave_up {
+        chosen.clear();
+    }
     // A sensor's own drift is named on per-sensor evidence, confirmed on the held-out half.
     if let Some(c) = cands.iter().position(|c| c.kind == "sensor_drift")
         && !chosen.contains(&c)
@@ -592,6 +604,13 @@ fn analyse_axis(
             Cross::Own { sensor, .. } => confirmed(&hh, *sensor, opts),
             _ => false,
         })
+    {
+        chosen.push(c);
+    }
+    // So is a sensor's own line, found on the first half and confirmed at its period on the held-out half.
+    if let Some(c) = cands.iter().position(|c| {
+        c.kind == "periodic" && c.cross.iter().any(|x| matches!(x, Cross::OwnSine { .. }))
+    }) && !chosen.contains(&c)
     {
         chosen.push(c);
     }
@@ -606,6 +625,7 @@ fn analyse_axis(
         typical,
         typ_terms,
         model_misfit,
+        gave_up,
     }
 }
 
@@ -643,7 +663,7 @@ fn retest_quiet_axes(
         })
         .collect();
     for i in 0..states.len() {
-        if !states[i].chosen.is_empty() {
+        if !states[i].chosen.is_empty() || states[i].gave_up {
             continue;
         }
         let kinds: Vec<&'static str> = states
@@ -674,6 +694,7 @@ struct Assembled {
     curves: Vec<AxisCurves>,
     fitted: Vec<AxisFit>,
     gaps: Gaps,
+    unexplained: Vec<Effect>,
 }
 
 /// Predicted white-region deviation ratio of the equal mean over the inverse-variance mean under `model`.
@@ -707,7 +728,7 @@ fn effects_of(
                 .filter(|(p, _)| *p != pos)
                 .map(|(_, &j)| &cands[j])
                 .collect();
-            let a = acts(
+            let mut a = acts(
                 cands[i].nature(),
                 &st.hh,
                 &st.wts,
@@ -715,6 +736,9 @@ fn effects_of(
                 &build(ns, &others),
                 &st.typ_terms,
             );
+            if cands[i].kind == "periodic" {
+                a.0 = "periodic".into();
+            }
             (w.kind, w.axis, cands[i].clone(), a)
         })
         .collect()
@@ -788,7 +812,12 @@ fn report_axis(
             .flat_map(|c| c.cross.iter().map(move |x| (c.kind, x.clone())))
             .collect(),
     });
-    let effects = refs.iter().map(|c| c.kind.to_string()).collect();
+    let mut effects: Vec<String> = refs.iter().map(|c| c.kind.to_string()).collect();
+    if sig[1] {
+        let u = unexplained::effect(w, &st, &after, ex(&after, sig[1]), opts);
+        effects.push(u.kind.clone());
+        out.unexplained.push(u);
+    }
     out.axes.push(AxisReport {
         axis: label,
         sensors: ns,

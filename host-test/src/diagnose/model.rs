@@ -86,6 +86,37 @@ impl Share {
     }
 }
 
+/// A sinusoid `A·sin(2πt/P + φ)` sampled every `tau0_s` (a periodic interference, `periodic`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sine {
+    /// Amplitude A, the series' unit.
+    pub amplitude: f64,
+    /// Period P, s.
+    pub period_s: f64,
+    /// Sample interval τ₀, s.
+    pub tau0_s: f64,
+}
+
+impl Sine {
+    /// The overlapping Allan variance of the sampled sinusoid at `τ = mτ₀`, averaged over the phase (exact for a
+    /// record of whole periods, the long-record limit otherwise): two adjacent means of m samples differ by
+    /// `2 sin(πτ/P)` times the mean's amplitude `A·|sin(πτ/P)| / (m·|sin(πτ₀/P)|)`, so
+    /// `σ²(τ) = A² sin⁴(πτ/P) / (m sin(πτ₀/P))²` — `A² sin⁴(πτ/P)/(πτ/P)²` as τ₀ → 0. Zero at every multiple of
+    /// the period; 0 for a period aliased to DC (P = τ₀/k).
+    pub fn avar(&self, tau_s: f64) -> f64 {
+        if !(self.tau0_s > 0.0 && self.period_s > 0.0) {
+            return 0.0;
+        }
+        let m = (tau_s / self.tau0_s).round().max(1.0);
+        let x = std::f64::consts::PI / self.period_s;
+        let den = m * (x * self.tau0_s).sin();
+        if den.abs() < 1e-12 {
+            return 0.0;
+        }
+        self.amplitude.powi(2) * (x * m * self.tau0_s).sin().powi(4) / (den * den)
+    }
+}
+
 /// A cross term between sensors.
 #[derive(Clone, Debug)]
 pub enum Cross {
@@ -108,6 +139,21 @@ pub enum Cross {
         sensor: usize,
         /// Its added Allan-variance terms.
         part: Terms,
+    },
+    /// A sinusoid seen by every one of `members` (`periodic`, shared): `C_ij = S(τ)`, the sinusoid's own Allan
+    /// variance ([`Sine::avar`], absolute: a deterministic interference has the same Allan variance in both halves).
+    SharedSine {
+        /// Sensors that see it.
+        members: Vec<usize>,
+        /// The sinusoid.
+        sine: Sine,
+    },
+    /// One sensor's own sinusoid (`periodic` on one sensor): the cluster gains `w_i² S(τ)`.
+    OwnSine {
+        /// The sensor.
+        sensor: usize,
+        /// The sinusoid.
+        sine: Sine,
     },
 }
 
@@ -150,6 +196,12 @@ impl Model {
                     v += (s * s - s2) * temp_avar.unwrap_or(0.0);
                 }
                 Cross::Own { sensor, part } => v += wt(*sensor).powi(2) * part.avar(tau_s),
+                Cross::SharedSine { members, sine } => {
+                    let s: f64 = members.iter().map(|&i| wt(i)).sum();
+                    let s2: f64 = members.iter().map(|&i| wt(i).powi(2)).sum();
+                    v += (s * s - s2) * sine.avar(tau_s);
+                }
+                Cross::OwnSine { sensor, sine } => v += wt(*sensor).powi(2) * sine.avar(tau_s),
             }
         }
         v
@@ -182,6 +234,45 @@ mod tests {
         // Without the cross term: (S+E)/16.
         let v0 = Model::independent(16).avar(&w, 10.0, s + e, None);
         assert!((v0 / ((s + e) / 16.0) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn sine_avar_is_the_overlapping_allan_variance_of_a_sampled_sinusoid() {
+        // Independent reference: the library's overlapping estimator on a sampled sinusoid of whole periods.
+        let (tau0, period, amp) = (0.2, 61.0, 0.7);
+        let n = (period / tau0) as usize * 200; // 200 whole periods (305 samples each)
+        let y: Vec<f64> = (0..n)
+            .map(|k| amp * (2.0 * std::f64::consts::PI * k as f64 * tau0 / period + 0.3).sin())
+            .collect();
+        let sine = Sine {
+            amplitude: amp,
+            period_s: period,
+            tau0_s: tau0,
+        };
+        let ms = [1usize, 3, 16, 50, 113, 152, 305, 400, 1000];
+        let pts = crate::allan::deviation(crate::allan::DevKind::Oadev, &y, tau0, &ms);
+        assert_eq!(pts.len(), ms.len());
+        for p in &pts {
+            let want = p.dev * p.dev;
+            let got = sine.avar(p.tau_s);
+            // Whole periods: exact up to the partial period the n − 2m + 1 windows leave (≤ P/(n − 2m), 0.5 %).
+            assert!(
+                (got - want).abs() <= 1e-2 * want + 1e-6 * amp * amp,
+                "tau {} s: model {got} vs estimate {want}",
+                p.tau_s
+            );
+        }
+        // The continuous limit at the AVAR's largest value, πτ/P ≈ 1.1656: 0.5250 A².
+        let fine = Sine {
+            tau0_s: 1e-4,
+            ..sine
+        };
+        let x: f64 = 1.165_561;
+        let peak = fine.avar(x * period / std::f64::consts::PI);
+        assert!(
+            (peak / (amp * amp) - x.sin().powi(4) / (x * x)).abs() < 1e-3,
+            "{peak}"
+        );
     }
 
     #[test]

@@ -83,7 +83,10 @@ pub fn text(r: &Report, source: &str) -> String {
             "Effects (chosen by the gap they explain on the held-out half):"
         );
         for e in &r.effects {
-            let groups = if e.kind == "outlier_sensor" || e.kind == "block_common_mode" {
+            let groups = if matches!(
+                e.kind.as_str(),
+                "outlier_sensor" | "block_common_mode" | "sensor_drift" | "periodic" | "bias_step"
+            ) {
                 format!(", groups {}", e.groups)
             } else {
                 String::new()

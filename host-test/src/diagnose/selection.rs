@@ -65,6 +65,8 @@ pub(super) struct AxisState {
     pub(super) typical: NoiseFit,
     pub(super) typ_terms: Terms,
     pub(super) model_misfit: f64,
+    /// The effects selected removed less than [`unexplained::NAME_SHARE`] of the held-out excess and were dropped.
+    pub(super) gave_up: bool,
 }
 
 /// Greedy selection on the held-out half: while the remaining gap is significant (scan statistic above `thr`),

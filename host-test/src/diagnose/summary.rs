@@ -180,7 +180,7 @@ pub(super) fn merge_effects(found: Vec<(SensorKind, usize, Candidate, Acts)>) ->
         }
         let per_group = matches!(
             c.kind,
-            "outlier_sensor" | "block_common_mode" | "sensor_drift"
+            "outlier_sensor" | "block_common_mode" | "sensor_drift" | "periodic"
         );
         let same = out.iter_mut().find(|e| {
             e.kind == c.kind && e.sensor == kind.name() && (!per_group || e.groups == c.groups)

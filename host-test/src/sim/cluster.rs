@@ -9,7 +9,7 @@
 //!   variance: the shared process (unit white / unit flicker, one per mode and axis) enters with coefficient
 //!   `N_i·√ρ` (resp. `B_i·√ρ_f`) and the independent generator keeps `N_i·√(1 − Σρ)`, so every sensor keeps its
 //!   own level and any two sensors of a mode have correlation ρ of their white parts;
-//! - [`CommonDrift`] processes are added with coefficient 1 to every sensor they cover;
+//! - [`CommonDrift`] processes and [`Periodic`] sinusoids are added with coefficient 1 to every sensor they cover;
 //! - [`Thermal`] adds `κ_i·(T(t) − T_ref)` to the raw channel's reading, `κ_i` = axis coefficient + normal
 //!   spread drawn per raw channel (the two z gyros of a group each their own), so the bias of each raw channel's
 //!   code is linear in temperature with `κ_i · slope` counts/°C ([`Simulator::thermal_coef_counts`]).
@@ -28,8 +28,8 @@ use std::fmt::Write as _;
 
 mod config;
 pub use config::{
-    CommonDrift, CommonMode, DriftKind, FrameOpts, Outlier, PartSpread, SensorOverride, SimConfig,
-    Thermal,
+    CommonDrift, CommonMode, DriftKind, FrameOpts, Outlier, PartSpread, Periodic, SensorOverride,
+    SimConfig, Thermal,
 };
 
 fn covers(groups: &Option<Vec<usize>>, g: usize) -> bool {
@@ -410,6 +410,14 @@ impl Simulator {
             if s.thermal_coef != 0.0 {
                 for (x, t) in r.iter_mut().zip(&out.temp_c) {
                     *x += s.thermal_coef * (t - t_ref);
+                }
+            }
+            let (g, ch) = (si / CHANNELS, Channel::ALL[si % CHANNELS]);
+            for p in &self.cfg.periodic {
+                if p.axes.contains(&ch.axis()) && covers(&p.groups, g) {
+                    for (x, &ts) in r.iter_mut().zip(&out.t_s) {
+                        *x += p.at(ts);
+                    }
                 }
             }
             if let Some((step, at, ramp)) = s.outlier {

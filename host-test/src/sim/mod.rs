@@ -30,8 +30,8 @@ mod tests;
 
 pub use calib::{CalMatrices, CalSpread, TrueGroupCal};
 pub use cluster::{
-    Chunk, CommonDrift, CommonMode, DriftKind, FrameOpts, Outlier, PartSpread, SensorOverride,
-    SimConfig, Simulator, Thermal, csv_header,
+    Chunk, CommonDrift, CommonMode, DriftKind, FrameOpts, Outlier, PartSpread, Periodic,
+    SensorOverride, SimConfig, Simulator, Thermal, csv_header,
 };
 pub use noise::{
     AvarTerms, FlickerBand, FlickerMethod, NoiseModel, NoiseParams, Sampling, SensorNoise,

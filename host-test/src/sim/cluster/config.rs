@@ -92,6 +92,29 @@ impl DriftKind {
     }
 }
 
+/// A sinusoidal interference `A·sin(2πt/P + φ)` added (with coefficient 1) to every covered sensor of each axis:
+/// all groups, a common-mode periodic disturbance (a reaction wheel, a heater's cycle); one group, one sensor's own.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Periodic {
+    /// Groups covered; `None` = all.
+    pub groups: Option<Vec<usize>>,
+    /// Axes covered.
+    pub axes: Vec<Axis>,
+    /// Amplitude A, °/s or g.
+    pub amplitude: f64,
+    /// Period P, s (> 0).
+    pub period_s: f64,
+    /// Phase φ, rad.
+    pub phase_rad: f64,
+}
+
+impl Periodic {
+    /// The interference at time `t_s`.
+    pub fn at(&self, t_s: f64) -> f64 {
+        self.amplitude * (2.0 * std::f64::consts::PI * t_s / self.period_s + self.phase_rad).sin()
+    }
+}
+
 /// Board temperature `T(t) = mean + amplitude·sin(2πt/period + phase) + drift·min(t, hold_after)`, output as
 /// `temp_c`, and per-sensor bias coefficients: each raw channel's reading gains `κ·(T(t) − T_ref)` (before the
 /// ADC, so in codes a per-raw-channel linear law of `κ · slope` counts/°C, `TrueGroupCal::slope`), `T_ref` = [`Self::ref_c`].
@@ -219,6 +242,8 @@ pub struct SimConfig {
     pub common: Vec<CommonMode>,
     /// Shared slow drifts.
     pub drift: Vec<CommonDrift>,
+    /// Sinusoidal interferences.
+    pub periodic: Vec<Periodic>,
     /// Board temperature and thermal bias; `None` = no `temp_c`.
     pub thermal: Option<Thermal>,
     /// Bad sensors.
@@ -252,6 +277,7 @@ impl SimConfig {
             overrides: Vec::new(),
             common: Vec::new(),
             drift: Vec::new(),
+            periodic: Vec::new(),
             thermal: None,
             outliers: Vec::new(),
             rate_dps: [0.0; 3],
@@ -333,6 +359,23 @@ impl SimConfig {
                 group_ok(*g)?;
             }
             d.kind.params().validate()?;
+        }
+        for p in &self.periodic {
+            for g in p.groups.iter().flatten() {
+                group_ok(*g)?;
+            }
+            check(
+                p.period_s.is_finite()
+                    && p.period_s > 0.0
+                    && p.amplitude.is_finite()
+                    && p.phase_rad.is_finite(),
+                || {
+                    format!(
+                        "periodic: period {} s must be > 0, amplitude {} and phase {} finite",
+                        p.period_s, p.amplitude, p.phase_rad
+                    )
+                },
+            )?;
         }
         if let Some(t) = &self.thermal {
             let all = [t.mean_c, t.amplitude_c, t.phase_rad, t.drift_c_per_h]

@@ -1,0 +1,65 @@
+//! `ground diagnose` on the real MIMU4444 records (`../shared/data/mimu4444`, or `MIMU4444_DIR`): the longest static
+//! interval of each experiment, in the cluster frame through its own static calibration — the numbers of the
+//! real-data table in `docs/diagnose.md`. Skipped, with a message, when the data are absent.
+
+use host_test::calibrate::{DetectOptions, StaticCalOptions, calibrate_static, detect_static};
+use host_test::diagnose::{Options, diagnose};
+
+#[test]
+fn diagnose_real_mimu4444_records() {
+    let dir = std::env::var_os("MIMU4444_DIR")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| {
+            std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/mimu4444")
+        });
+    if !dir.join("exp_1/data.bin").is_file() {
+        eprintln!(
+            "SKIPPED diagnose_real_mimu4444_records: no MIMU4444 data at {} (set MIMU4444_DIR)",
+            dir.display()
+        );
+        return;
+    }
+    for e in 1..=6 {
+        let m = host_test::mimu::read(dir.join(format!("exp_{e}/data.bin"))).unwrap();
+        let poses = detect_static(&m, &DetectOptions::default()).unwrap();
+        let cal = calibrate_static(&poses, &StaticCalOptions::default()).unwrap();
+        let table = cal.to_table::<{ host_test::load::MIMU_IMUS }>(e).unwrap();
+        let Some(p) = poses
+            .iter()
+            .max_by(|a, b| (a.end_s - a.start_s).total_cmp(&(b.end_s - b.start_s)))
+        else {
+            panic!("exp_{e}: no static interval");
+        };
+        let rec =
+            host_test::load::mimu_recording(&m, Some(&table)).window(p.start_s, p.end_s + 1e-3);
+        let r = diagnose(&rec, &Options::default()).unwrap();
+        let effects: Vec<String> = r
+            .effects
+            .iter()
+            .map(|x| {
+                let periods: Vec<String> = x
+                    .params
+                    .values()
+                    .filter_map(|p| p["period_s"].as_f64())
+                    .map(|p| format!("{p:.3}"))
+                    .collect();
+                format!("{} {} {} {}", x.kind, x.sensor, x.axes, periods.join("/"))
+            })
+            .collect();
+        let misfit: Vec<String> = r
+            .axes
+            .iter()
+            .map(|a| format!("{} {:.2}", a.axis, a.model_misfit))
+            .collect();
+        eprintln!(
+            "exp_{e}: {} samples, held-out excess gap {:.3} -> {:.3}; effects {effects:?}; model misfit {misfit:?}",
+            r.samples, r.heldout.gap_before, r.heldout.gap_after
+        );
+        // The model with the effects never predicts the held-out half worse than the sqrt(N) model.
+        assert!(
+            r.heldout.gap_after <= r.heldout.gap_before + 1e-12,
+            "exp_{e}: {:?}",
+            r.heldout
+        );
+    }
+}
