@@ -20,7 +20,7 @@ fn diagnose_real_mimu4444_records() {
         return;
     }
     for e in 1..=6 {
-        let m = host_test::mimu::read(dir.join(format!("exp_{e}/data.bin"))).unwrap();
+        let m = host_test::formats::mimu::read(dir.join(format!("exp_{e}/data.bin"))).unwrap();
         let poses = detect_static(&m, &DetectOptions::default()).unwrap();
         let cal = calibrate_static(&poses, &StaticCalOptions::default()).unwrap();
         let table = cal.to_table::<{ host_test::load::MIMU_IMUS }>(e).unwrap();
