@@ -34,6 +34,49 @@ pub fn std_dev(v: &[f64]) -> f64 {
     (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() as f64 - 1.0)).sqrt()
 }
 
+/// A least-squares sinusoid `sin·sin(ωt) + cos·cos(ωt)` (no offset) through `(t, y)` points ([`fit_sinusoid`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SineFit {
+    /// Coefficient of `sin(ωt)`.
+    pub sin: f64,
+    /// Coefficient of `cos(ωt)`.
+    pub cos: f64,
+    /// The sum of squares the fit removes from the `y`.
+    pub removed: f64,
+}
+
+impl SineFit {
+    /// The amplitude, `√(sin² + cos²)`.
+    pub fn amplitude(&self) -> f64 {
+        self.sin.hypot(self.cos)
+    }
+}
+
+/// The least-squares [`SineFit`] at angular frequency `omega` (rad per unit of `t`) through `points`; `None` when
+/// sine and cosine cannot be told apart on these times (their normal matrix is singular: no points, or too few).
+pub fn fit_sinusoid(points: impl IntoIterator<Item = (f64, f64)>, omega: f64) -> Option<SineFit> {
+    let (mut ss, mut cc, mut sc, mut sy, mut cy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for (t, y) in points {
+        let (s, c) = (omega * t).sin_cos();
+        ss += s * s;
+        cc += c * c;
+        sc += s * c;
+        sy += s * y;
+        cy += c * y;
+    }
+    let det = ss * cc - sc * sc;
+    if det.abs() < 1e-300 {
+        return None;
+    }
+    let sin = (cc * sy - sc * cy) / det;
+    let cos = (ss * cy - sc * sy) / det;
+    Some(SineFit {
+        sin,
+        cos,
+        removed: sin * sy + cos * cy,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -48,5 +91,39 @@ mod tests {
         assert!(median(&[f64::NAN]).is_nan());
         assert_eq!(std_dev(&[1.0, 3.0]), 2f64.sqrt());
         assert!(std_dev(&[1.0]).is_nan());
+    }
+
+    /// An exact sinusoid plus a component at another frequency, on uneven times: the fit recovers the coefficients
+    /// at its own frequency (to the leakage of the other, ≪ 5e-3), and what it removes is their energy; with no
+    /// point, or one at t = 0, there is nothing to fit.
+    #[test]
+    fn sinusoid_fit() {
+        let w = 0.37;
+        let t: Vec<f64> = (0..4000)
+            .map(|k| k as f64 * 0.5 + 0.01 * (k % 7) as f64)
+            .collect();
+        let y: Vec<f64> = t
+            .iter()
+            .map(|&t| 1.5 * (w * t).sin() - 0.25 * (w * t).cos() + 0.3 * (2.9 * t).sin())
+            .collect();
+        let fit = fit_sinusoid(t.iter().copied().zip(y.iter().copied()), w).unwrap();
+        assert!((fit.sin - 1.5).abs() < 5e-3, "{fit:?}");
+        assert!((fit.cos + 0.25).abs() < 5e-3, "{fit:?}");
+        let pure: f64 = t
+            .iter()
+            .map(|&t| (1.5 * (w * t).sin() - 0.25 * (w * t).cos()).powi(2))
+            .sum();
+        assert!(
+            (fit.removed / pure - 1.0).abs() < 5e-3,
+            "{} vs {pure}",
+            fit.removed
+        );
+        assert!((fit.amplitude() - 1.5f64.hypot(0.25)).abs() < 5e-3);
+        assert_eq!(fit_sinusoid(std::iter::empty(), w), None);
+        assert_eq!(
+            fit_sinusoid([(0.0, 1.0)], w),
+            None,
+            "one point: the sine is 0 there"
+        );
     }
 }

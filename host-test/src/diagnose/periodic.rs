@@ -186,28 +186,18 @@ pub(super) fn strongest(z: &[f64], b: usize, tau0: f64, tests: f64, p_false: f64
 /// Least-squares amplitude of a sinusoid at `f` cycles per block in the block means `x`, divided by the attenuation
 /// of `b`-sample block means, `|sin(πfb')/(b sin(πf'))|` with f' = f/b cycles per sample.
 fn amplitude(x: &[f64], f: f64, b: usize) -> f64 {
-    let (mut scc, mut sss, mut ssc, mut syc, mut sys) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for (t, v) in x.iter().enumerate() {
-        let (s, c) = (2.0 * std::f64::consts::PI * f * t as f64).sin_cos();
-        scc += c * c;
-        sss += s * s;
-        ssc += s * c;
-        syc += v * c;
-        sys += v * s;
-    }
-    let det = scc * sss - ssc * ssc;
-    if det.abs() < 1e-300 {
+    let omega = 2.0 * std::f64::consts::PI * f;
+    let points = x.iter().enumerate().map(|(t, &v)| (t as f64, v));
+    let Some(fit) = crate::stats::fit_sinusoid(points, omega) else {
         return 0.0;
-    }
-    let a = (syc * sss - sys * ssc) / det;
-    let c = (sys * scc - syc * ssc) / det;
+    };
     let fs = f / b as f64;
     let att = if b > 1 {
         ((std::f64::consts::PI * f).sin() / (b as f64 * (std::f64::consts::PI * fs).sin())).abs()
     } else {
         1.0
     };
-    a.hypot(c) / att.max(1e-6)
+    fit.amplitude() / att.max(1e-6)
 }
 
 /// The score of a line at `period_s` in the block means `z` and the threshold at `p_false` over `tests` series (no

@@ -391,21 +391,6 @@ pub fn fit_temperature(t_s: &[f64], temp: &[f64], tau0: f64) -> TemperatureModel
 
 /// Sum of squares a sinusoid of period `p` removes from `r` (least squares on sin and cos).
 fn sinusoid_gain(t: &[f64], r: &[f64], p: f64) -> f64 {
-    let w = std::f64::consts::TAU / p;
-    let (mut ss, mut cc, mut sc, mut sr, mut cr) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for (&x, &y) in t.iter().zip(r) {
-        let (s, c) = (w * x).sin_cos();
-        ss += s * s;
-        cc += c * c;
-        sc += s * c;
-        sr += s * y;
-        cr += c * y;
-    }
-    let det = ss * cc - sc * sc;
-    if det.abs() < 1e-300 {
-        return 0.0;
-    }
-    let a = (cc * sr - sc * cr) / det;
-    let b = (ss * cr - sc * sr) / det;
-    a * sr + b * cr
+    let points = t.iter().copied().zip(r.iter().copied());
+    crate::stats::fit_sinusoid(points, std::f64::consts::TAU / p).map_or(0.0, |f| f.removed)
 }
