@@ -6,7 +6,7 @@
 //! then mutates into structured inputs as well.
 
 use host_test::formats::csv::{Column, Recording, SensorKind};
-use host_test::mimu::{ACK, Frame, ImuSample, TICKS_PER_SAMPLE};
+use host_test::formats::mimu::{ACK, Frame, ImuSample, TICKS_PER_SAMPLE};
 use shared::bus::csp::{CspHeader, CspPacket, FLAG_CRC32, PORT_PING};
 use shared::bus::{BusConfig, MAX_WIRE_FRAME};
 use shared::calib::{CalibrationTable, encoded_len_max};
@@ -44,7 +44,12 @@ fn frame(seq: u16) -> FrameRepr {
             *c = if ch < 4 { 19_680 } else { 24_000 } + (g * 7 + ch) as u16;
         }
     }
-    FrameRepr { seq, decimation: 15, temp_cdeg: Some(2150), raw }
+    FrameRepr {
+        seq,
+        decimation: 15,
+        temp_cdeg: Some(2150),
+        raw,
+    }
 }
 
 fn main() {
@@ -62,7 +67,11 @@ fn main() {
     });
     let health = Telemetry::Health(HealthReport {
         uptime_ms: 123_456,
-        link: LinkCounters { frames: 1000, crc_errors: 2, ..Default::default() },
+        link: LinkCounters {
+            frames: 1000,
+            crc_errors: 2,
+            ..Default::default()
+        },
         cal_id: 5,
         cal_source: CalSource::Uploaded,
         decimation: Some(15),
@@ -79,10 +88,17 @@ fn main() {
     });
     let faults = Telemetry::Faults(FaultReport {
         group: 3,
-        gyro: FaultCounts { saturated: 1, stuck: 0, outlier: 2 },
+        gyro: FaultCounts {
+            saturated: 1,
+            stuck: 0,
+            outlier: 2,
+        },
         accel: FaultCounts::default(),
     });
-    let ack = Telemetry::Ack(Ack { tag: 300, result: Err(Reject::CalOffset(192)) });
+    let ack = Telemetry::Ack(Ack {
+        tag: 300,
+        result: Err(Reject::CalOffset(192)),
+    });
     for (i, t) in [fused, health, faults, ack].iter().enumerate() {
         let mut b = vec![0];
         b.extend(enc(t));
@@ -100,9 +116,18 @@ fn main() {
         Command::Ping,
         Command::SetDecimation(15),
         Command::SetOutputRate(32),
-        Command::SetFusion { mode: FusionMode::Equal, robust: false },
-        Command::CalBegin { len: tbytes.len() as u16, crc: shared::crc::crc32c(&tbytes) },
-        Command::CalChunk { offset: 0, data: heapless::Vec::from_slice(&tbytes[..64]).unwrap() },
+        Command::SetFusion {
+            mode: FusionMode::Equal,
+            robust: false,
+        },
+        Command::CalBegin {
+            len: tbytes.len() as u16,
+            crc: shared::crc::crc32c(&tbytes),
+        },
+        Command::CalChunk {
+            offset: 0,
+            data: heapless::Vec::from_slice(&tbytes[..64]).unwrap(),
+        },
         Command::CalCommit,
         Command::AllanRequest { first: 0, count: 6 },
         Command::AllanReset,
@@ -110,7 +135,10 @@ fn main() {
     ];
     for (i, c) in cmds.iter().enumerate() {
         let mut b = vec![1];
-        b.extend(enc(&CommandEnvelope { tag: i as u16 + 1, cmd: c.clone() }));
+        b.extend(enc(&CommandEnvelope {
+            tag: i as u16 + 1,
+            cmd: c.clone(),
+        }));
         put("messages", &format!("command-{i}"), &b);
     }
     let mut b = vec![3];
@@ -129,11 +157,25 @@ fn main() {
     let mut out = [0u8; MAX_WIRE_FRAME];
     let mut bus = Vec::new();
     for (dport, flags, payload) in [
-        (cfg.command_port, 0, enc(&CommandEnvelope { tag: 1, cmd: Command::Ping })),
+        (
+            cfg.command_port,
+            0,
+            enc(&CommandEnvelope {
+                tag: 1,
+                cmd: Command::Ping,
+            }),
+        ),
         (PORT_PING, FLAG_CRC32, b"ping".to_vec()),
         (20, 0, b"other port".to_vec()),
     ] {
-        let h = CspHeader { prio: 2, src: cfg.ground_addr, dst: cfg.addr, dport, sport: 30, flags };
+        let h = CspHeader {
+            prio: 2,
+            src: cfg.ground_addr,
+            dst: cfg.addr,
+            dport,
+            sport: 30,
+            flags,
+        };
         let n = CspPacket::emit_kiss(&h, cfg.version, &payload, &mut out).unwrap();
         bus.extend_from_slice(&out[..n]);
     }
@@ -158,7 +200,10 @@ fn main() {
 
     let mut pipe = (frames.len() as u16).to_le_bytes().to_vec();
     pipe.extend(&frames);
-    pipe.extend(enc(&CommandEnvelope { tag: 9, cmd: Command::HealthRequest { detail: true } }));
+    pipe.extend(enc(&CommandEnvelope {
+        tag: 9,
+        cmd: Command::HealthRequest { detail: true },
+    }));
     put("pipeline", "frames-and-command", &raw(&pipe));
 
     // MIMU4444: acknowledgement then consecutive frames.
@@ -181,13 +226,32 @@ fn main() {
         t_s: vec![0.0, 0.016, 0.032],
         temp_c: Some(vec![21.5, 21.5, 21.51]),
         columns: vec![
-            Column { group: 0, kind: SensorKind::Gyro, axis: 0, data: vec![0.1, -0.2, 0.3] },
-            Column { group: 0, kind: SensorKind::Accel, axis: 2, data: vec![1.0, 0.999, 1.001] },
-            Column { group: 3, kind: SensorKind::Gyro, axis: 1, data: vec![-1e-6, 0.0, 2.5] },
+            Column {
+                group: 0,
+                kind: SensorKind::Gyro,
+                axis: 0,
+                data: vec![0.1, -0.2, 0.3],
+            },
+            Column {
+                group: 0,
+                kind: SensorKind::Accel,
+                axis: 2,
+                data: vec![1.0, 0.999, 1.001],
+            },
+            Column {
+                group: 3,
+                kind: SensorKind::Gyro,
+                axis: 1,
+                data: vec![-1e-6, 0.0, 2.5],
+            },
         ],
     };
     let tmp = std::env::temp_dir().join("gen-corpus.csv");
     rec.write(&tmp).unwrap();
     put("csv_reader", "written", &fs::read(&tmp).unwrap());
-    put("csv_reader", "reordered", b"a00z,t,foo,g00x,temp_c\n1.5,0,7,0.25,20\n-1,0.1,8,0.5,20.5\n");
+    put(
+        "csv_reader",
+        "reordered",
+        b"a00z,t,foo,g00x,temp_c\n1.5,0,7,0.25,20\n-1,0.1,8,0.5,20.5\n",
+    );
 }

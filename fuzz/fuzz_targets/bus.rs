@@ -20,7 +20,9 @@ use common::chunks;
 use libfuzzer_sys::fuzz_target;
 use shared::bus::csp::{CspHeader, CspPacket, CspVersion, FLAG_CRC32, PORT_PING};
 use shared::bus::kiss::{self, KissDecoder};
-use shared::bus::{BusConfig, BusCounters, BusEvent, BusNode, MAX_FRAME, MAX_PAYLOAD, MAX_WIRE_FRAME};
+use shared::bus::{
+    BusConfig, BusCounters, BusEvent, BusNode, MAX_FRAME, MAX_PAYLOAD, MAX_WIRE_FRAME,
+};
 
 #[derive(Arbitrary, Debug, Clone, Copy)]
 struct Header {
@@ -37,7 +39,11 @@ impl Header {
         CspHeader {
             prio: self.prio & 3,
             src: self.src & cfg.version.max_addr(),
-            dst: if to_node.is_some() { cfg.addr } else { self.dst & cfg.version.max_addr() },
+            dst: if to_node.is_some() {
+                cfg.addr
+            } else {
+                self.dst & cfg.version.max_addr()
+            },
             dport: match to_node {
                 Some(true) => cfg.command_port,
                 Some(false) => PORT_PING,
@@ -54,7 +60,11 @@ enum Piece {
     Raw(Vec<u8>),
     Kiss(Vec<u8>),
     /// A packet; `to_node`: Some(true) = our command port, Some(false) = our ping port, None = as given.
-    Packet { header: Header, to_node: Option<bool>, payload: Vec<u8> },
+    Packet {
+        header: Header,
+        to_node: Option<bool>,
+        payload: Vec<u8>,
+    },
 }
 
 #[derive(Arbitrary, Debug)]
@@ -117,7 +127,11 @@ fuzz_target!(|data: &[u8]| {
 });
 
 fn check(input: Input) {
-    let version = if input.v2 { CspVersion::V2 } else { CspVersion::V1 };
+    let version = if input.v2 {
+        CspVersion::V2
+    } else {
+        CspVersion::V1
+    };
     let cfg = BusConfig {
         version,
         addr: input.addr & version.max_addr(),
@@ -140,7 +154,8 @@ fn check(input: Input) {
             Piece::Kiss(frame) => {
                 // KISS round trip on its own decoder.
                 let frame = &frame[..frame.len().min(MAX_FRAME)];
-                let n = kiss::encode(&[frame], &mut out).expect("a MAX_FRAME frame fits MAX_WIRE_FRAME");
+                let n = kiss::encode(&[frame], &mut out)
+                    .expect("a MAX_FRAME frame fits MAX_WIRE_FRAME");
                 let mut d = KissDecoder::<MAX_FRAME>::new();
                 let mut wire: &[u8] = &out[..n];
                 let got = d.decode(&mut wire);
@@ -153,14 +168,22 @@ fn check(input: Input) {
                 well_formed = false; // arbitrary bytes are not necessarily a valid CSP packet
                 stream.extend_from_slice(&out[..n]);
             }
-            Piece::Packet { header, to_node, payload } => {
+            Piece::Packet {
+                header,
+                to_node,
+                payload,
+            } => {
                 let h = header.csp(&cfg, *to_node);
                 let payload = &payload[..payload.len().min(MAX_PAYLOAD)];
-                let n = CspPacket::emit_kiss(&h, cfg.version, payload, &mut out).expect("a MAX_PAYLOAD packet fits");
+                let n = CspPacket::emit_kiss(&h, cfg.version, payload, &mut out)
+                    .expect("a MAX_PAYLOAD packet fits");
                 // CSP round trip through the KISS decoder.
                 let mut d = KissDecoder::<MAX_FRAME>::new();
                 let mut wire: &[u8] = &out[..n];
-                let frame = d.decode(&mut wire).expect("a frame").expect("a valid KISS frame");
+                let frame = d
+                    .decode(&mut wire)
+                    .expect("a frame")
+                    .expect("a valid KISS frame");
                 let p = CspPacket::parse(frame, cfg.version).expect("an emitted packet parses");
                 assert_eq!(p.header, h);
                 assert_eq!(p.payload, payload);
@@ -194,7 +217,9 @@ fn check(input: Input) {
     // Telemetry to the ground, replies to pings.
     let payload: Vec<u8> = stream.iter().copied().take(MAX_PAYLOAD).collect();
     let node = BusNode::new(cfg);
-    let n = node.encode_telemetry(&payload, &mut out).expect("telemetry fits");
+    let n = node
+        .encode_telemetry(&payload, &mut out)
+        .expect("telemetry fits");
     let mut ground = BusNode::new(BusConfig {
         version: cfg.version,
         addr: cfg.ground_addr,
@@ -205,7 +230,11 @@ fn check(input: Input) {
     });
     let mut wire: &[u8] = &out[..n];
     let got = ground.receive(&mut wire).map(own);
-    assert_eq!(got, Some(Ev::Command(payload.clone())), "telemetry round trip");
+    assert_eq!(
+        got,
+        Some(Ev::Command(payload.clone())),
+        "telemetry round trip"
+    );
     for e in &whole {
         if let Ev::Ping(h, p) = e {
             let n = node.encode_reply(h, p, &mut out).expect("reply fits");

@@ -26,7 +26,10 @@ fn tmp() -> &'static PathBuf {
     })
 }
 
-fn same(a: &Result<(Recording, Vec<String>), impl std::fmt::Debug>, b: &Result<(Recording, Vec<String>), impl std::fmt::Debug>) -> bool {
+fn same(
+    a: &Result<(Recording, Vec<String>), impl std::fmt::Debug>,
+    b: &Result<(Recording, Vec<String>), impl std::fmt::Debug>,
+) -> bool {
     match (a, b) {
         (Ok((ra, wa)), Ok((rb, wb))) => wa == wb && format!("{ra:?}") == format!("{rb:?}"),
         (Err(ea), Err(eb)) => format!("{ea:?}") == format!("{eb:?}"),
@@ -39,7 +42,13 @@ fuzz_target!(|data: &[u8]| {
     if let Ok(text) = std::str::from_utf8(data) {
         let parsed = Recording::parse(text);
         // Compared through Debug so that NaN cells compare equal to themselves.
-        assert!(same(&parsed, &Recording::parse_from(data, data.len() as u64, "<text>")), "parse and parse_from differ");
+        assert!(
+            same(
+                &parsed,
+                &Recording::parse_from(data, data.len() as u64, "<text>")
+            ),
+            "parse and parse_from differ"
+        );
     }
     let Ok((rec, _)) = streamed else { return };
     for c in &rec.columns {
@@ -52,7 +61,10 @@ fuzz_target!(|data: &[u8]| {
     rec.write(&path).unwrap();
     let first = std::fs::read(&path).unwrap();
     let (again, _) = Recording::read(&path).unwrap_or_else(|e| {
-        panic!("canonical output does not parse: {e}\n{}", String::from_utf8_lossy(&first))
+        panic!(
+            "canonical output does not parse: {e}\n{}",
+            String::from_utf8_lossy(&first)
+        )
     });
     again.write(&path).unwrap();
     let second = std::fs::read(&path).unwrap();

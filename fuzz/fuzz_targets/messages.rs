@@ -7,8 +7,8 @@
 //! always fit `MAX_MESSAGE_LEN`; tables fit `encoded_len_max`. `peek_tag` of a decoded command is its tag.
 #![no_main]
 
-use libfuzzer_sys::fuzz_target;
 use core::fmt::Debug;
+use libfuzzer_sys::fuzz_target;
 use shared::calib::{CalibrationTable, encoded_len_max};
 use shared::telemetry::{self, Command, CommandEnvelope, MAX_MESSAGE_LEN, Telemetry};
 use shared::wire::frame::GROUPS;

@@ -1,5 +1,5 @@
-//! The MIMU4444 stream reader of the ground tool (`host_test::mimu::parse_with`, the byte-level reader behind
-//! `host_test::mimu::read`, which only adds the file read).
+//! The MIMU4444 stream reader of the ground tool (`host_test::formats::mimu::parse_with`, the byte-level reader behind
+//! `host_test::formats::mimu::read`, which only adds the file read).
 //!
 //! Input: a stream built from pieces (the command acknowledgement, valid frames, damaged frames, raw bytes) and the
 //! options.
@@ -16,7 +16,9 @@
 mod common;
 
 use arbitrary::Arbitrary;
-use host_test::mimu::{self, ACK, FRAME_LEN, Frame, ImuSample, ParseOptions, TICKS_PER_SAMPLE};
+use host_test::formats::mimu::{
+    self, ACK, FRAME_LEN, Frame, ImuSample, ParseOptions, TICKS_PER_SAMPLE,
+};
 use libfuzzer_sys::fuzz_target;
 
 #[derive(Arbitrary, Debug)]
@@ -24,11 +26,22 @@ enum Piece {
     Ack,
     Raw(Vec<u8>),
     /// A valid frame: packet number, timestamp, a seed for the IMU words.
-    Frame { packet: u16, timestamp: u32, seed: u16 },
+    Frame {
+        packet: u16,
+        timestamp: u32,
+        seed: u16,
+    },
     /// The next consecutive frame (packet + 1, timestamp + one sample period).
-    Next { seed: u16 },
-    Damaged { at: u8, xor: u8 },
-    Truncated { keep: u8 },
+    Next {
+        seed: u16,
+    },
+    Damaged {
+        at: u8,
+        xor: u8,
+    },
+    Truncated {
+        keep: u8,
+    },
 }
 
 #[derive(Arbitrary, Debug)]
@@ -48,13 +61,19 @@ fn frame(packet: u16, timestamp: u32, seed: u16) -> Frame {
     Frame {
         packet,
         timestamp,
-        imu: core::array::from_fn(|_| ImuSample { acc: [w(), w(), w()], gyro: [w(), w(), w()] }),
+        imu: core::array::from_fn(|_| ImuSample {
+            acc: [w(), w(), w()],
+            gyro: [w(), w(), w()],
+        }),
     }
 }
 
 fuzz_target!(|data: &[u8]| {
     // Seeds from real recordings: 'R' ++ bytes is the raw form.
-    let raw = |rest: &[u8]| Input { pieces: vec![Piece::Raw(rest.to_vec())], max_skipped: 128 };
+    let raw = |rest: &[u8]| Input {
+        pieces: vec![Piece::Raw(rest.to_vec())],
+        max_skipped: 128,
+    };
     if let Some(input) = common::input(data, raw) {
         check(input);
     }
@@ -75,14 +94,22 @@ fn check(input: Input) {
                 clean &= b.is_empty();
                 bytes.extend_from_slice(b);
             }
-            Piece::Frame { packet, timestamp, seed } => {
+            Piece::Frame {
+                packet,
+                timestamp,
+                seed,
+            } => {
                 last = frame(*packet, *timestamp, *seed);
                 clean &= expected.is_empty();
                 expected.push(last);
                 bytes.extend_from_slice(&last.encode());
             }
             Piece::Next { seed } => {
-                last = frame(last.packet.wrapping_add(1), last.timestamp.wrapping_add(TICKS_PER_SAMPLE), *seed);
+                last = frame(
+                    last.packet.wrapping_add(1),
+                    last.timestamp.wrapping_add(TICKS_PER_SAMPLE),
+                    *seed,
+                );
                 clean &= !expected.is_empty();
                 expected.push(last);
                 bytes.extend_from_slice(&last.encode());
@@ -100,9 +127,18 @@ fn check(input: Input) {
             }
         }
     }
-    let lenient_opts = ParseOptions { strict: false, max_skipped_fraction: f64::from(input.max_skipped) / 255.0 };
+    let lenient_opts = ParseOptions {
+        strict: false,
+        max_skipped_fraction: f64::from(input.max_skipped) / 255.0,
+    };
     let lenient = mimu::parse_with(&bytes, &lenient_opts);
-    let strict = mimu::parse_with(&bytes, &ParseOptions { strict: true, ..lenient_opts });
+    let strict = mimu::parse_with(
+        &bytes,
+        &ParseOptions {
+            strict: true,
+            ..lenient_opts
+        },
+    );
     for r in [&lenient, &strict] {
         let Ok(rec) = r else { continue };
         let n = rec.frames.len();

@@ -25,7 +25,7 @@ use libfuzzer_sys::fuzz_target;
 use shared::calib::{CalibrationTable, encoded_len_max};
 use shared::crc::crc32c;
 use shared::fuse::FusionMode;
-use shared::pipeline::{PipelineMemory, Output, Pipeline, PipelineConfig};
+use shared::pipeline::{Output, Pipeline, PipelineConfig, PipelineMemory};
 use shared::telemetry::{
     self, Ack, CAL_CHUNK_MAX, CalSource, Command, CommandEnvelope, MAX_MESSAGE_LEN, Telemetry,
 };
@@ -55,7 +55,11 @@ impl Cmd {
             Cmd::SetDecimation(n) => Command::SetDecimation(n),
             Cmd::SetOutputRate(n) => Command::SetOutputRate(n),
             Cmd::SetFusion { equal, robust } => Command::SetFusion {
-                mode: if equal { FusionMode::Equal } else { FusionMode::InverseVariance },
+                mode: if equal {
+                    FusionMode::Equal
+                } else {
+                    FusionMode::InverseVariance
+                },
                 robust,
             },
             Cmd::CalBegin { len, crc } => Command::CalBegin { len, crc },
@@ -67,9 +71,11 @@ impl Cmd {
             Cmd::AllanRequest { first, count } => Command::AllanRequest { first, count },
             Cmd::AllanReset => Command::AllanReset,
             Cmd::HealthRequest { detail } => Command::HealthRequest { detail },
-            Cmd::SetMode { idle } => {
-                Command::SetMode(if idle { telemetry::Mode::Idle } else { telemetry::Mode::Stream })
-            }
+            Cmd::SetMode { idle } => Command::SetMode(if idle {
+                telemetry::Mode::Idle
+            } else {
+                telemetry::Mode::Stream
+            }),
             Cmd::ExcludeGroups { gyro, accel } => Command::ExcludeGroups { gyro, accel },
             Cmd::SetTime { unix_us } => Command::SetTime { unix_us },
         }
@@ -93,10 +99,22 @@ struct Upload {
 #[derive(Arbitrary, Debug)]
 enum Op {
     Link(Vec<u8>),
-    Frames { first: FrameSpec, count: u8, seq_step: u8, split: u8 },
-    Damaged { frame: FrameSpec, at: u8, xor: u8 },
+    Frames {
+        first: FrameSpec,
+        count: u8,
+        seq_step: u8,
+        split: u8,
+    },
+    Damaged {
+        frame: FrameSpec,
+        at: u8,
+        xor: u8,
+    },
     CommandBytes(Vec<u8>),
-    Command { tag: u16, cmd: Cmd },
+    Command {
+        tag: u16,
+        cmd: Cmd,
+    },
     Upload(Upload),
     Poll(u8),
     Dump(u8),
@@ -119,14 +137,22 @@ impl Input {
     /// Raw form: `[n lo, n hi] ++ link bytes (n) ++ command message` on the default configuration.
     fn raw(bytes: &[u8]) -> Self {
         let (n, rest) = match bytes {
-            [a, b, rest @ ..] => (usize::from(u16::from_le_bytes([*a, *b])).min(rest.len()), rest),
+            [a, b, rest @ ..] => (
+                usize::from(u16::from_le_bytes([*a, *b])).min(rest.len()),
+                rest,
+            ),
             _ => (0, bytes),
         };
         let (link, cmd) = rest.split_at(n);
         Self {
             frames_per_output: 32,
             health_every: 1,
-            ops: vec![Op::Link(link.to_vec()), Op::CommandBytes(cmd.to_vec()), Op::Poll(255), Op::Dump(255)],
+            ops: vec![
+                Op::Link(link.to_vec()),
+                Op::CommandBytes(cmd.to_vec()),
+                Op::Poll(255),
+                Op::Dump(255),
+            ],
         }
     }
 }
@@ -201,7 +227,11 @@ impl Run {
             Some(Output::Telemetry(Telemetry::Ack(ack))) => ack,
             // A commit: its ack waits for the platform's store, which succeeds here.
             Some(Output::PersistCalibration { tag }) => {
-                assert_eq!(out.len(), 1, "a commit asks for the store and nothing else: {out:?}");
+                assert_eq!(
+                    out.len(),
+                    1,
+                    "a commit asks for the store and nothing else: {out:?}"
+                );
                 self.p.calibration_persisted(tag, true)
             }
             _ => panic!("no ack first: {out:?}"),
@@ -214,7 +244,9 @@ impl Run {
 
     fn send(&mut self, tag: u16, cmd: Command) -> (Ack, Vec<Output>) {
         let mut buf = [0u8; MAX_MESSAGE_LEN];
-        let bytes = telemetry::encode(&CommandEnvelope { tag, cmd }, &mut buf).expect("command fits").to_vec();
+        let bytes = telemetry::encode(&CommandEnvelope { tag, cmd }, &mut buf)
+            .expect("command fits")
+            .to_vec();
         self.command(&bytes, Some(tag))
     }
 }
@@ -232,11 +264,19 @@ fn check(input: Input) {
         health_every: u16::from(input.health_every % 4),
         ..PipelineConfig::DEFAULT
     };
-    let mut run = Run { p: Pipeline::new(config, Box::new(PipelineMemory::new())), last: [0; 12] };
+    let mut run = Run {
+        p: Pipeline::new(config, Box::new(PipelineMemory::new())),
+        last: [0; 12],
+    };
     for op in input.ops.iter().take(64) {
         match op {
             Op::Link(b) => run.push_link(b),
-            Op::Frames { first, count, seq_step, split } => {
+            Op::Frames {
+                first,
+                count,
+                seq_step,
+                split,
+            } => {
                 let mut bytes = Vec::new();
                 let mut f = *first;
                 for _ in 0..(count % 16) {
@@ -275,19 +315,34 @@ fn check(input: Input) {
                 }
                 let before = *run.p.calibration();
                 let before_source = run.p.calibration_source();
-                let (ack, _) = run.send(u.tag, Command::CalBegin { len: bytes.len() as u16, crc });
+                let (ack, _) = run.send(
+                    u.tag,
+                    Command::CalBegin {
+                        len: bytes.len() as u16,
+                        crc,
+                    },
+                );
                 assert_eq!(ack.result, Ok(()), "CalBegin of a table");
                 let sizes: Vec<usize> = if u.chunk_sizes.is_empty() {
                     vec![CAL_CHUNK_MAX]
                 } else {
-                    u.chunk_sizes.iter().map(|&s| usize::from(s).clamp(1, CAL_CHUNK_MAX)).collect()
+                    u.chunk_sizes
+                        .iter()
+                        .map(|&s| usize::from(s).clamp(1, CAL_CHUNK_MAX))
+                        .collect()
                 };
                 let mut off = 0;
                 let mut i = 0;
                 while off < bytes.len() {
                     let n = sizes[i % sizes.len()].min(bytes.len() - off);
                     let data = heapless::Vec::from_slice(&bytes[off..off + n]).unwrap();
-                    let (ack, _) = run.send(u.tag, Command::CalChunk { offset: off as u16, data });
+                    let (ack, _) = run.send(
+                        u.tag,
+                        Command::CalChunk {
+                            offset: off as u16,
+                            data,
+                        },
+                    );
                     assert_eq!(ack.result, Ok(()), "CalChunk at {off}");
                     off += n;
                     i += 1;
@@ -301,10 +356,16 @@ fn check(input: Input) {
                     assert_eq!(run.p.calibration_source(), CalSource::Uploaded);
                     assert_eq!(out, [Output::PersistCalibration { tag: u.tag }]);
                 } else {
-                    assert!(ack.result.is_err(), "commit of a corrupted/invalid table accepted");
+                    assert!(
+                        ack.result.is_err(),
+                        "commit of a corrupted/invalid table accepted"
+                    );
                     assert_eq!(*run.p.calibration(), before);
                     assert_eq!(run.p.calibration_source(), before_source);
-                    assert!(!out.iter().any(|o| matches!(o, Output::PersistCalibration { .. })));
+                    assert!(
+                        !out.iter()
+                            .any(|o| matches!(o, Output::PersistCalibration { .. }))
+                    );
                 }
             }
             Op::Poll(n) => {

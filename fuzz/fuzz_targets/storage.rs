@@ -27,7 +27,6 @@ use shared::wire::frame::GROUPS as G;
 const SLOT_BLOCKS: usize = 3;
 const SLOT: usize = SLOT_BLOCKS * ERASE;
 
-
 #[derive(Arbitrary, Debug, Clone, Copy)]
 struct TableSpec {
     cal_id: u32,
@@ -81,7 +80,11 @@ impl Input {
             records: Vec::new(),
             image: bytes.to_vec(),
             damage: Vec::new(),
-            new: TableSpec { cal_id: 77, group: 1, bias: -3 },
+            new: TableSpec {
+                cal_id: 77,
+                group: 1,
+                bias: -3,
+            },
             cut: 16,
         }
     }
@@ -94,7 +97,11 @@ fn put_record(mem: &mut [u8], r: &Record) {
         Payload::Table(t) => t.table().encode(&mut payload).unwrap().to_vec(),
         Payload::Bytes(b) => b[..b.len().min(SLOT - 16)].to_vec(),
     };
-    let seq = if r.near_wrap { u32::MAX.wrapping_sub(r.back % 4) } else { r.back };
+    let seq = if r.near_wrap {
+        u32::MAX.wrapping_sub(r.back % 4)
+    } else {
+        r.back
+    };
     let mut rec = Vec::new();
     rec.extend_from_slice(&MAGIC.to_le_bytes());
     rec.extend_from_slice(&seq.to_le_bytes());
@@ -116,8 +123,15 @@ fn scratch() -> Vec<u8> {
 }
 
 fn boot(mem: &[u8]) -> shared::storage::Loaded<G> {
-    let mut store = CalStore::new(MockFlash::<ERASE> { mem: mem.to_vec(), budget: None, ops: 0 }).unwrap();
-    store.load::<G>(&mut scratch()).expect("load over arbitrary flash")
+    let mut store = CalStore::new(MockFlash::<ERASE> {
+        mem: mem.to_vec(),
+        budget: None,
+        ops: 0,
+    })
+    .unwrap();
+    store
+        .load::<G>(&mut scratch())
+        .expect("load over arbitrary flash")
 }
 
 fuzz_target!(|data: &[u8]| {
@@ -143,15 +157,25 @@ fn check(input: Input) {
     let new = input.new.table();
 
     // Store with no cut, then reboot.
-    let mut store = CalStore::new(MockFlash::<ERASE> { mem: mem.clone(), budget: None, ops: 0 }).unwrap();
-    let seq = store.store(&new, &mut scratch()).expect("store on a healthy flash");
+    let mut store = CalStore::new(MockFlash::<ERASE> {
+        mem: mem.clone(),
+        budget: None,
+        ops: 0,
+    })
+    .unwrap();
+    let seq = store
+        .store(&new, &mut scratch())
+        .expect("store on a healthy flash");
     let flash = store.into_inner();
     let total_ops = flash.ops;
     let after = boot(&flash.mem);
     assert_eq!(after.table, new, "reload after store");
     assert_eq!(after.seq, Some(seq));
     if let Some(old) = before.seq {
-        assert!(is_newer(seq, old), "new seq {seq} not newer than booted {old}");
+        assert!(
+            is_newer(seq, old),
+            "new seq {seq} not newer than booted {old}"
+        );
         if old == u32::MAX {
             assert_eq!(seq, 0, "seq wrap");
         }
@@ -159,9 +183,18 @@ fn check(input: Input) {
 
     // A power cut after `cut` operations: old or new, never anything else.
     let budget = usize::from(input.cut) % total_ops.max(1);
-    let mut store = CalStore::new(MockFlash::<ERASE> { mem: mem.clone(), budget: Some(budget), ops: 0 }).unwrap();
+    let mut store = CalStore::new(MockFlash::<ERASE> {
+        mem: mem.clone(),
+        budget: Some(budget),
+        ops: 0,
+    })
+    .unwrap();
     let result = store.store(&new, &mut scratch());
-    assert_eq!(result, Err(StoreError::Flash(MockError::PowerCut)), "cut after {budget} of {total_ops}");
+    assert_eq!(
+        result,
+        Err(StoreError::Flash(MockError::PowerCut)),
+        "cut after {budget} of {total_ops}"
+    );
     let flash = store.into_inner();
     let l = boot(&flash.mem);
     assert!(

@@ -23,9 +23,16 @@ enum Piece {
     Raw(Vec<u8>),
     Frame(FrameSpec),
     /// A frame with one byte flipped (`xor` ≠ 0 makes it damaged) at `at` (mod FRAME_LEN).
-    Damaged { frame: FrameSpec, at: u16, xor: u8 },
+    Damaged {
+        frame: FrameSpec,
+        at: u16,
+        xor: u8,
+    },
     /// The first `keep` bytes of a frame (a dropped tail).
-    Truncated { frame: FrameSpec, keep: u8 },
+    Truncated {
+        frame: FrameSpec,
+        keep: u8,
+    },
 }
 
 #[derive(Arbitrary, Debug)]
@@ -37,7 +44,10 @@ struct Input {
 impl Input {
     /// The bytes as one raw piece, decoded one-shot and in 1-, 7- and 64-byte chunks.
     fn raw(bytes: &[u8]) -> Self {
-        Self { pieces: vec![Piece::Raw(bytes.to_vec())], sizes: vec![1, 7, 64] }
+        Self {
+            pieces: vec![Piece::Raw(bytes.to_vec())],
+            sizes: vec![1, 7, 64],
+        }
     }
 }
 
@@ -104,7 +114,10 @@ fn check(input: Input) {
     assert_eq!(c.frames as usize, whole.len());
     let consumed = whole.len() * FRAME_LEN + c.bytes_skipped as usize;
     assert!(consumed <= stream.len(), "more bytes accounted than given");
-    assert!(stream.len() - consumed < FRAME_LEN, "a whole frame's worth of bytes held back");
+    assert!(
+        stream.len() - consumed < FRAME_LEN,
+        "a whole frame's worth of bytes held back"
+    );
 
     for d in &whole {
         assert_eq!(FrameRepr::parse_bytes(&d.frame.to_bytes()), Ok(d.frame));

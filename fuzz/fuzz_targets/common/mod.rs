@@ -39,7 +39,12 @@ pub enum Codes {
     /// Every code the same value (stuck / saturated when it is 0 or 0xFFFF).
     Constant(u16),
     /// Nominal, but one group's one channel at `value` (outlier, rail).
-    OneOff { seed: u32, group: u8, ch: u8, value: u16 },
+    OneOff {
+        seed: u32,
+        group: u8,
+        ch: u8,
+        value: u16,
+    },
     /// Fully arbitrary codes from the seed.
     Random(u64),
 }
@@ -84,7 +89,10 @@ impl FrameSpec {
                         *c = (nominal(ch) + noise).clamp(0, 0xFFFF) as u16;
                     }
                 }
-                if let Codes::OneOff { group, ch, value, .. } = self.codes {
+                if let Codes::OneOff {
+                    group, ch, value, ..
+                } = self.codes
+                {
                     raw[usize::from(group) % GROUPS][usize::from(ch) % RAW_PER_GROUP] = value;
                 }
             }
