@@ -2,23 +2,16 @@
 //! interval of each experiment, in the cluster frame through its own static calibration — the numbers of the
 //! real-data table in `docs/diagnose.md`. Skipped, with a message, when the data are absent.
 
+mod common;
+
 use host_test::calibrate::{DetectOptions, StaticCalOptions, calibrate_static, detect_static};
 use host_test::diagnose::{Options, diagnose};
 
 #[test]
 fn diagnose_real_mimu4444_records() {
-    let dir = std::env::var_os("MIMU4444_DIR")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| {
-            std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/mimu4444")
-        });
-    if !dir.join("exp_1/data.bin").is_file() {
-        eprintln!(
-            "SKIPPED diagnose_real_mimu4444_records: no MIMU4444 data at {} (set MIMU4444_DIR)",
-            dir.display()
-        );
+    let Some(dir) = common::mimu4444_dir("diagnose_real_mimu4444_records") else {
         return;
-    }
+    };
     for e in 1..=6 {
         let m = host_test::formats::mimu::read(dir.join(format!("exp_{e}/data.bin"))).unwrap();
         let poses = detect_static(&m, &DetectOptions::default()).unwrap();

@@ -160,18 +160,9 @@ fn unequal_parts() {
 #[test]
 fn the_twin_of_real_mimu4444_records() {
     use host_test::calibrate::{DetectOptions, StaticCalOptions, calibrate_static, detect_static};
-    let dir = std::env::var_os("MIMU4444_DIR")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| {
-            std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/mimu4444")
-        });
-    if !dir.join("exp_1/data.bin").is_file() {
-        eprintln!(
-            "SKIPPED the_twin_of_real_mimu4444_records: no MIMU4444 data at {} (set MIMU4444_DIR)",
-            dir.display()
-        );
+    let Some(dir) = common::mimu4444_dir("the_twin_of_real_mimu4444_records") else {
         return;
-    }
+    };
     let recs: Vec<host_test::recording::Recording> = (1..=6)
         .map(|e| {
             let m = host_test::formats::mimu::read(dir.join(format!("exp_{e}/data.bin"))).unwrap();

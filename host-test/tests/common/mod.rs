@@ -81,4 +81,22 @@ pub fn rel(a: f64, b: f64) -> f64 {
     if a == b { 0.0 } else { ((a - b) / b).abs() }
 }
 
+/// The real MIMU4444 records (`MIMU4444_DIR`, else `../shared/data/mimu4444` beside the repository); `None`, with a
+/// SKIPPED line naming `test`, when they are absent.
+pub fn mimu4444_dir(test: &str) -> Option<PathBuf> {
+    let dir = std::env::var_os("MIMU4444_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/mimu4444")
+        });
+    if dir.join("exp_1/data.bin").is_file() {
+        return Some(dir);
+    }
+    eprintln!(
+        "SKIPPED {test}: no MIMU4444 data at {} (set MIMU4444_DIR)",
+        dir.display()
+    );
+    None
+}
+
 pub mod effects;
