@@ -6,6 +6,7 @@
 //! - [`layout`]: the STM32F405 facts the loops and the models both need (flash sectors, line rates, ring sizes,
 //!   the longest store stall, the stack the flight build leaves).
 //! - [`mcu_sensors`]: the MCU's temperature and VDDA from its ADC codes and factory calibration.
+//! - [`tasks`]: the task table, which loop each task runs with which edges of the board, for both builds.
 //! - [`sim`] (host): the clock and executor (virtual or real time), UART lines, the flash model.
 #![no_std]
 
@@ -25,6 +26,7 @@ pub mod layout;
 pub mod mcu_sensors;
 #[cfg(feature = "sim")]
 pub mod sim;
+pub mod tasks;
 
 /// The STM32 USART's receive errors as the link loop counts them (here, not in `board.rs`: the orphan rule wants
 /// the trait's crate).

@@ -1,8 +1,9 @@
 //! IMU cluster firmware for the STM32F405RG: a thin shell over `shared::Pipeline`.
 //!
-//! `main` configures the board, loads the calibration and spawns the tasks; each task is a few lines that hand its
-//! peripherals to a board-independent loop in `firmware::app` (embassy tasks cannot be generic; the same loops run
-//! on the PC in the SITL and the scenario tests). Pins and peripherals live in [`board`] only.
+//! `main` configures the board, loads the calibration and spawns the tasks of [`firmware::task_table!`]: one embassy
+//! task per line, each a call of a board-independent loop in `firmware::app` (embassy tasks cannot be generic; the
+//! same table joins the same loops on the PC in the SITL and the scenario tests). Pins and peripherals live in
+//! [`board`] only.
 #![no_std]
 #![no_main]
 
@@ -11,6 +12,7 @@ mod fault;
 
 use embassy_executor::Spawner;
 use firmware::app::{self, App};
+use firmware::tasks::Edges;
 use shared::bus::BusConfig;
 use shared::pipeline::PipelineConfig;
 use shared::storage::CalStore;
@@ -50,6 +52,39 @@ static APP: ConstStaticCell<FwApp> = ConstStaticCell::new(App::new(
 ));
 static STORE: StaticCell<CalStore<board::CalibFlash>> = StaticCell::new();
 
+/// The edges' types as the tasks take them (embassy tasks cannot be generic).
+type FpgaRx = board::FpgaRx;
+type FpgaTx = board::FpgaTx;
+type CoreClock = board::CoreClock;
+type BusRx = board::BusRx;
+type BusTx = board::BusTx;
+type Store = &'static mut CalStore<board::CalibFlash>;
+type Watchdog = board::Watchdog;
+type Led = board::Led;
+type Pps = board::Pps;
+
+/// One embassy task per line of the table, each a call of its loop.
+macro_rules! define_tasks {
+    ({} |$app:ident| $($name:ident($($edge:ident: $ty:ty),*) => $body:expr;)*) => {
+        $(
+            #[embassy_executor::task]
+            #[allow(unused_mut)] // `storage` passes its `&mut` on
+            async fn $name($app: &'static FwApp, $(mut $edge: $ty),*) {
+                $body.await
+            }
+        )*
+    };
+}
+
+/// Spawns each task with its edges.
+macro_rules! spawn_tasks {
+    ({ $spawner:ident, $app_val:ident, $edges:ident } |$app:ident| $($name:ident($($edge:ident: $ty:ty),*) => $body:expr;)*) => {
+        $($spawner.spawn(defmt::unwrap!($name($app_val, $($edges.$edge),*)));)*
+    };
+}
+
+firmware::task_table!(define_tasks {});
+
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     // First of all, so that a hang anywhere in init (a crystal that stops while embassy waits for it) resets.
@@ -80,52 +115,20 @@ async fn main(spawner: Spawner) {
     app::load_calibration(store, app.pipeline.get_mut());
     let app: &'static FwApp = app;
 
-    spawner.spawn(defmt::unwrap!(watchdog(app, wdt, b.led)));
-    spawner.spawn(defmt::unwrap!(fpga_link(app, b.fpga_rx)));
-    spawner.spawn(defmt::unwrap!(fpga_ctrl(app, b.fpga_tx, b.core_clock)));
-    spawner.spawn(defmt::unwrap!(bus_rx(app, b.bus_rx)));
-    spawner.spawn(defmt::unwrap!(bus_tx(app, b.bus_tx)));
-    spawner.spawn(defmt::unwrap!(storage(app, store)));
-    spawner.spawn(defmt::unwrap!(housekeeping(app)));
-    spawner.spawn(defmt::unwrap!(pps(app, b.pps)));
-}
-
-#[embassy_executor::task]
-async fn fpga_link(app: &'static FwApp, mut rx: board::FpgaRx) {
-    app::link_loop(app, &mut rx).await
-}
-
-#[embassy_executor::task]
-async fn fpga_ctrl(app: &'static FwApp, mut tx: board::FpgaTx, mut clock: board::CoreClock) {
-    app::fpga_ctrl_loop(app, &mut tx, &mut clock).await
-}
-
-#[embassy_executor::task]
-async fn bus_rx(app: &'static FwApp, mut rx: board::BusRx) {
-    app::bus_rx_loop(app, &mut rx).await
-}
-
-#[embassy_executor::task]
-async fn bus_tx(app: &'static FwApp, mut tx: board::BusTx) {
-    app::bus_tx_loop(app, &mut tx).await
-}
-
-#[embassy_executor::task]
-async fn storage(app: &'static FwApp, store: &'static mut CalStore<board::CalibFlash>) {
-    app::storage_loop(app, store).await
-}
-
-#[embassy_executor::task]
-async fn watchdog(app: &'static FwApp, mut wdt: board::Watchdog, mut led: board::Led) {
-    app::watchdog_loop(app, app::WATCHDOG_PERIOD, || wdt.pet(), &mut led).await
-}
-
-#[embassy_executor::task]
-async fn housekeeping(app: &'static FwApp) {
-    app::housekeeping_loop(app, app::LOG_EVERY).await
-}
-
-#[embassy_executor::task]
-async fn pps(app: &'static FwApp, mut pps: board::Pps) {
-    app::pps_loop(app, &mut pps).await
+    let edges = Edges {
+        fpga_rx: b.fpga_rx,
+        fpga_tx: b.fpga_tx,
+        core_clock: b.core_clock,
+        bus_rx: b.bus_rx,
+        bus_tx: b.bus_tx,
+        store,
+        watchdog: wdt,
+        led: b.led,
+        pps: b.pps,
+    };
+    firmware::task_table!(spawn_tasks {
+        spawner,
+        app,
+        edges
+    });
 }

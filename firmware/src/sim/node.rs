@@ -1,10 +1,11 @@
-//! The simulated board: the lines and the watchdog around one [`App`], and [`tasks`], every firmware loop joined
-//! into one future — what `main.rs` spawns on the MCU, with the same arguments. The SITL binary and the scenario
+//! The simulated board: the lines and the watchdog around one [`App`], and [`tasks`], every firmware loop of the
+//! task table ([`crate::task_table!`]) joined into one future — what `main.rs` spawns on the MCU, with the same
+//! arguments. The SITL binary and the scenario
 //! tests both run the firmware through this.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
-use embassy_futures::join::{join, join3, join4};
+use embassy_futures::join::join;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_time::{Duration, Instant, Timer};
@@ -19,6 +20,7 @@ use super::line::Line;
 use crate::app::{self, App};
 use crate::layout::{BUS_BAUD, BUS_RX_RING_LEN, FPGA_RX_RING_LEN};
 use crate::log::Loggable;
+use crate::tasks::Edges;
 
 /// The FPGA sending `log` frame by frame at decimation N (a frame every N + 1 ticks of its base clock at
 /// `base_rate_millihz`), frame k at the frame clock's time of its k·(N + 1)-th tick from now (the time the pipeline
@@ -128,6 +130,33 @@ impl Default for Board {
     }
 }
 
+/// The simulated IWDG: counts the feeds in [`Board::watchdog_feeds`].
+pub struct SimWatchdog<'a>(&'a AtomicU32);
+
+impl SimWatchdog<'_> {
+    /// Feeds it.
+    pub fn pet(&mut self) {
+        self.0.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+/// Joins every loop of the task table ([`crate::task_table!`]) into one future, each with its edges.
+macro_rules! join_tasks {
+    ({ $app_val:ident, $edges:ident } |$app:ident| $($name:ident($($edge:ident: $ty:ty),*) => $body:expr;)*) => {{
+        let $app = $app_val;
+        join_all!($({
+            $(#[allow(unused_mut)] let mut $edge = $edges.$edge;)*
+            async move { $body.await }
+        }),*)
+    }};
+}
+
+/// `join(a, join(b, …))`.
+macro_rules! join_all {
+    ($last:expr) => { $last };
+    ($first:expr, $($rest:expr),+) => { join($first, join_all!($($rest),+)) };
+}
+
 /// Every firmware loop over `board` and `store`, joined (never returns: drop it to stop the firmware).
 pub async fn tasks<B, F>(app: &App<B>, board: &Board, store: &mut CalStore<F>)
 where
@@ -135,31 +164,16 @@ where
     F: NorFlash,
     F::Error: Loggable,
 {
-    let mut fpga_rx = board.fpga_rx.rx();
-    let mut fpga_tx = board.fpga_tx.writer(None);
-    let mut bus_rx = board.bus_rx.rx();
-    let mut bus_tx = board.bus_tx.writer(board.bus_baud);
-    let mut led = NoPin;
-    let mut pps = SimPps(&board.pps);
-    let mut clock = SimCoreClock(&board.core_hz);
-    let feed = || {
-        board.watchdog_feeds.fetch_add(1, Ordering::Relaxed);
+    let edges = Edges {
+        fpga_rx: board.fpga_rx.rx(),
+        fpga_tx: board.fpga_tx.writer(None),
+        core_clock: SimCoreClock(&board.core_hz),
+        bus_rx: board.bus_rx.rx(),
+        bus_tx: board.bus_tx.writer(board.bus_baud),
+        store,
+        watchdog: SimWatchdog(&board.watchdog_feeds),
+        led: NoPin,
+        pps: SimPps(&board.pps),
     };
-    let _ = join(
-        join4(
-            app::link_loop(app, &mut fpga_rx),
-            app::bus_rx_loop(app, &mut bus_rx),
-            app::bus_tx_loop(app, &mut bus_tx),
-            app::fpga_ctrl_loop(app, &mut fpga_tx, &mut clock),
-        ),
-        join3(
-            join(
-                app::storage_loop(app, store),
-                app::watchdog_loop(app, app::WATCHDOG_PERIOD, feed, &mut led),
-            ),
-            app::housekeeping_loop(app, app::LOG_EVERY),
-            app::pps_loop(app, &mut pps),
-        ),
-    )
-    .await;
+    let _ = crate::task_table!(join_tasks { app, edges }).await;
 }
