@@ -167,9 +167,8 @@ impl Level0 {
     /// Adds `d²` of the difference to the previous sample (< 2⁹⁶ in all: cannot wrap).
     fn add_square(&mut self, x: i32) {
         let d = u64::from(x.abs_diff(self.prev));
-        // As one 128-bit sum: written as a 64-bit sum and its carry, LLVM formed the low sum with `UMLAL` and
-        // multiplied again for the carry (−1 instruction per channel and sample on the Cortex-M4; in 32-bit limbs,
-        // +9).
+        // As one 128-bit sum: written as a 64-bit sum and its carry, LLVM forms the low sum with `UMLAL` and
+        // multiplies again for the carry.
         let s = self.sum_sq().wrapping_add(u128::from(d.wrapping_mul(d)));
         self.sum_lo = s as u64;
         self.sum_hi = (s >> 64) as u32;
@@ -217,7 +216,7 @@ fn push_into(zero: &mut Level0, higher: &mut [Level], x: i32, last_has_prev: boo
 
 /// Streaming non-overlapping octave Allan accumulators of `C` channels that take their samples together (see
 /// module docs): one sample count and one step for all, so that the per-sample bookkeeping is paid once per sample,
-/// not once per channel (the pipeline's 102 channels: −0.9 k Cortex-M4 instructions per frame, `mcu-bench`).
+/// not once per channel (the pipeline's 102 channels).
 #[derive(Clone, Debug)]
 pub struct AllanSet<const C: usize> {
     samples: u64,

@@ -153,8 +153,8 @@ pub struct Pipeline<B> {
     fusion: Fusion<GROUPS>,
     memory: B,
     fused_hold: [i32; AXES],
-    /// The frame in work: every field is written before it is read, each frame (kept here rather than zeroed on the
-    /// stack each frame: −0.3 k Cortex-M4 instructions per frame).
+    /// The frame in work: every field is written before it is read, each frame (kept here so that it is not zeroed
+    /// on the stack each frame).
     scratch: FrameScratch,
     last: FusedSample,
     avg: Averager,

@@ -74,8 +74,7 @@ impl RawCounts {
     }
 
     /// The counts of every group of `frame`, read from its bytes (`Frame::groups`: no copy of the frame), into
-    /// `out` (one per group, in order). Always inlined: the pipeline's frame loop counted 17 instructions more with
-    /// it as a call (`mcu-bench`).
+    /// `out` (one per group, in order). Always inlined: it runs once per frame, in the frame loop.
     #[inline(always)]
     pub fn read_frame<T: AsRef<[u8]>>(
         frame: &crate::wire::Frame<T>,
@@ -131,8 +130,8 @@ fn affine<const N: usize>(m: &[[i32; N]; 3], b: &[i32; N], raw: &[i32; N]) -> [i
     // In 32 bits, so that every product is one 32 × 32 → 64-bit multiply (SMLAL on the Cortex-M4): ADC codes
     // (0 ≤ raw < 2¹⁶) give raw · 2¹² < 2²⁸, and a table's biases are within ±2²⁸ (`BIAS_LIMIT_Q12`, checked when a
     // table is decoded), so d = raw · 2¹² − b stays within (−2²⁸, 2²⁹) and nothing wraps. Outside that domain
-    // (counts or biases no frame or table can carry) the result wraps instead of failing; it was a clamp to ±2²⁹
-    // in 64 bits, which cost 1.3 k Cortex-M4 instructions per frame (`mcu-bench`) and never acted on real input.
+    // (counts or biases no frame or table can carry) the result wraps instead of failing: a clamp in 64 bits would
+    // cost every frame and never act on real input.
     let mut d = [0i32; N];
     for ((dj, &rj), &bj) in d.iter_mut().zip(raw).zip(b) {
         *dj = rj.wrapping_shl(FRAC_BITS).wrapping_sub(bj);

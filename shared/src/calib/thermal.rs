@@ -3,9 +3,8 @@
 //!
 //! The biases depend on temperature only, so they are recomputed when the frame's temperature differs from the one
 //! they were computed for, not every frame: the board's sensor reads in 0.01 °C and an orbit's ±8 °C cycle changes
-//! that reading about once a second, so the recomputation (4.8 k Cortex-M4 instructions for 16 groups, `mcu-bench`:
-//! 29 767 per frame when every frame brings a new temperature, 24 934 when it is steady) is paid on about one frame
-//! in 600.
+//! that reading about once a second, so the recomputation (about 5 k Cortex-M4 instructions for 16 groups:
+//! `mcu-bench`'s thermal rows, `docs/performance.md`) is paid on about one frame in 600.
 //!
 //! A frame without a valid temperature is calibrated at the last valid one (counted in `held`); before the first
 //! valid temperature since the pipeline started, no stale value exists and the table's reference biases apply
@@ -93,8 +92,7 @@ pub struct TempCounts {
 
 /// The calibration in force for a table with thermal terms, kept in step with the frames' temperature: each
 /// group's affine map with the biases of the temperature (a whole `GroupCal` per group, so that the frame's
-/// calibration is the same code with or without thermal terms: applying separately kept biases cost 2.1 k
-/// Cortex-M4 instructions per frame more, `mcu-bench`).
+/// calibration is the same code with or without thermal terms, and no separate bias step on the frame path).
 #[derive(Clone, Copy, Debug)]
 pub struct ThermalComp<const G: usize> {
     groups: [GroupCal; G],

@@ -13,9 +13,9 @@ const _: () = assert!(VAR_LIMIT_ROOT * VAR_LIMIT_ROOT / 2 == VAR_LIMIT);
 /// Per sample only a sum grows: `block_sum += min(|Δr|, 2²⁴)²` (one `UMLAL` on the Cortex-M4). Every
 /// `weight_interval` samples the block is folded into the exponential average: the block's mean `Δr²/2` moves `var`
 /// by the fraction `n / 2^shift` of the way (n = the block's differences, at most the whole way), which weighs every
-/// difference as a per-sample average over 2^shift samples would, to first order. The per-sample average cost
-/// 64 Cortex-M4 instructions per sensor axis (a 64-bit subtraction, a run-time 64-bit shift, a saturating counter),
-/// this 26 (the loop included).
+/// difference as a per-sample average over 2^shift samples would, to first order, without the per-sample average's
+/// 64-bit subtraction, run-time 64-bit shift and saturating counter (costs: `docs/performance.md`, Cortex-M4 cost
+/// sections).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct NoiseEst {
     /// Exponential average of Δr²/2, (output unit)², ≤ [`VAR_LIMIT`].

@@ -24,10 +24,9 @@ impl RawWatch {
     /// ≥ `span` as `u32`, see `Fusion::fuse`; any channel repeated `stuck_repeats` (≥ 1) times).
     ///
     /// Written out for the 7 channels, each one's state at a fixed offset: the compiler keeps a loop over channels
-    /// with a branch in it rolled (address arithmetic and spilled constants per channel), and the two loops over
-    /// the gyro's 4 and the accelerometer's 3 channels this replaced cost 2.9 k Cortex-M4 instructions per frame;
-    /// written out, the whole frame costs 0.63 k less (`mcu-bench`; a loop over the 7 channels with bit flags
-    /// counted 0.19 k more than the two loops, a loop over an array of the channels' references 1.2 k more).
+    /// with a branch in it rolled (address arithmetic and spilled constants per channel), which costs more on the
+    /// frame path than this (the loop shapes tried, with their `mcu-bench` costs: `docs/performance.md`, Cortex-M4
+    /// cost sections).
     #[inline(always)]
     pub(super) fn update(
         &mut self,

@@ -51,9 +51,8 @@ pub fn calibrate(
     axes: &mut [[i32; AXES]; GROUPS],
 ) {
     thermal.update(table, temp_cdeg);
-    // Loops into initialised arrays, not `array::map`: on the M4 (opt-level "s") the map's staging copies cost
-    // 3.0 k instructions per frame, the loop 0.8 k (`mcu-bench`); at opt-level 2 `from_fn` and `each_ref().map`
-    // still cost 0.4–0.7 k more than the loops.
+    // Loops into initialised arrays, not `array::map`, `from_fn` or `each_ref().map`: those stage the arrays through
+    // copies on the M4 (`docs/performance.md`, Cortex-M4 cost sections).
     for ((out, r), group) in axes.iter_mut().zip(raw.iter()).zip(thermal.groups()) {
         *out = group.apply(r);
     }

@@ -76,8 +76,8 @@ impl FrameClock {
     /// it).
     ///
     /// With ticks = q · rate + m (0 ≤ m < rate): ⌊ticks · 10⁹ / rate⌋ = q · 10⁹ + ⌊m · 10⁹ / rate⌋, two 64-bit
-    /// divisions where m · 10⁹ fits 64 bits (rate < 2³⁴ millihertz: every FPGA rate), instead of a 128-bit one (≈ 1.1 k
-    /// Cortex-M4 instructions per frame in `mcu-bench`, where the pipeline stamps every frame).
+    /// divisions where m · 10⁹ fits 64 bits (rate < 2³⁴ millihertz: every FPGA rate), instead of a 128-bit one, a
+    /// library call on the Cortex-M4 (the pipeline stamps every frame).
     pub fn ticks_to_us(ticks: u64, base_rate_millihz: u64) -> u64 {
         // A rate of 0 counts as 1 millihertz.
         let rate = NonZeroU64::new(base_rate_millihz).unwrap_or(NonZeroU64::MIN);

@@ -136,7 +136,7 @@ impl FrameDecoder {
     /// where they lie (the caller's `input`, or the decoder's buffer for a frame split across calls), and reads what
     /// it needs; the result is the sequence gap, `None` (and `lend` not called) when `input` ran out first. The
     /// pipeline's path: nothing is copied (a parse into `FrameRepr` is a 224-byte `memcpy` between differently
-    /// aligned buffers: the pipeline costs 0.9 k Cortex-M4 instructions per frame less without it, `mcu-bench`).
+    /// aligned buffers, every frame).
     pub fn decode_with(
         &mut self,
         input: &mut &[u8],
