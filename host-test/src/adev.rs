@@ -49,9 +49,7 @@ pub fn mean_label(kind: SensorKind, axis: usize) -> String {
 /// The equal-weight cluster mean of one axis over all groups that have it; `None` if none.
 pub fn cluster_mean(rec: &Recording, kind: SensorKind, axis: usize) -> Option<(Vec<f64>, usize)> {
     let cols: Vec<&[f64]> = rec
-        .columns
-        .iter()
-        .filter(|c| c.kind == kind && c.axis == axis)
+        .axis_columns(kind, axis)
         .map(|c| c.data.as_slice())
         .collect();
     let n = cols.len();

@@ -177,6 +177,18 @@ impl Recording {
         self.columns.iter().find(|c| c.name() == name)
     }
 
+    /// The columns of one sensor kind and axis, in file order (one per group that has it).
+    pub fn axis_columns(&self, kind: SensorKind, axis: usize) -> impl Iterator<Item = &Column> {
+        self.columns
+            .iter()
+            .filter(move |c| c.kind == kind && c.axis == axis)
+    }
+
+    /// The column of one sensor kind, group and axis.
+    pub fn find(&self, kind: SensorKind, group: usize, axis: usize) -> Option<&Column> {
+        self.axis_columns(kind, axis).find(|c| c.group == group)
+    }
+
     /// Groups present, sorted.
     pub fn groups(&self) -> Vec<usize> {
         let mut g: Vec<usize> = self.columns.iter().map(|c| c.group).collect();

@@ -292,9 +292,8 @@ pub fn table_weights(
             (SensorKind::Accel, t - 3)
         };
         let cols: Vec<&Column> = rec
-            .columns
-            .iter()
-            .filter(|c| c.kind == kind && c.axis == axis && c.group < groups)
+            .axis_columns(kind, axis)
+            .filter(|c| c.group < groups)
             .collect();
         let series: Vec<&[f64]> = cols.iter().map(|c| c.data.as_slice()).collect();
         let w = if held_out {

@@ -143,9 +143,7 @@ fn curves(
     tau0: f64,
 ) -> Option<(Curves, usize)> {
     let cols: Vec<&[f64]> = rec
-        .columns
-        .iter()
-        .filter(|c| c.kind == kind && c.axis == axis)
+        .axis_columns(kind, axis)
         .map(|c| c.data.as_slice())
         .collect();
     if cols.len() < 2 {

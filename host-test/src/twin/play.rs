@@ -187,12 +187,8 @@ pub fn frames(rec: &Recording, decimation: u16) -> Result<Vec<u8>, TwinError> {
     use shared::calib::board::nominal_codes;
     use shared::wire::FrameRepr;
     use shared::wire::frame::{FRAME_LEN, GROUPS, RAW_PER_GROUP};
-    let col = |kind: SensorKind, g: usize, a: usize| {
-        rec.columns
-            .iter()
-            .find(|c| c.kind == kind && c.group == g && c.axis == a)
-            .map(|c| c.data.as_slice())
-    };
+    let col =
+        |kind: SensorKind, g: usize, a: usize| rec.find(kind, g, a).map(|c| c.data.as_slice());
     let mut cols = Vec::with_capacity(GROUPS);
     for g in 0..GROUPS {
         let axes: Option<Vec<&[f64]>> = [SensorKind::Gyro, SensorKind::Accel]
