@@ -9,7 +9,7 @@ mod common;
 use common::effects::*;
 use host_test::diagnose::{Options, diagnose};
 use host_test::sim::{
-    Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, SimConfig,
+    Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, Periodic, SimConfig,
 };
 use host_test::simcli::recording;
 use host_test::twin::{self, ClusterModel, CompareOptions, PlayOptions};
@@ -26,6 +26,11 @@ const BASE: u64 = 7_300_001;
 
 /// Fits on A, plays the twin with and without effects, compares both with a fresh B; returns the kinds named.
 fn close_the_loop(cfg: SimConfig, effect_axes: &[&str]) -> Vec<String> {
+    close_the_loop_model(cfg, effect_axes).0
+}
+
+/// [`close_the_loop`], returning the model too.
+fn close_the_loop_model(cfg: SimConfig, effect_axes: &[&str]) -> (Vec<String>, ClusterModel) {
     let board = Some(cfg.seed);
     let a = recording(SimConfig {
         board_seed: board,
@@ -37,6 +42,7 @@ fn close_the_loop(cfg: SimConfig, effect_axes: &[&str]) -> Vec<String> {
     let model = twin::fit(&a, &report, "A").unwrap();
     let model = ClusterModel::from_toml(&model.to_toml().unwrap(), "A.toml").unwrap();
     drop(a);
+    let twin_model = model.clone();
     let b = recording(SimConfig {
         seed: cfg.seed + 500_000,
         board_seed: board,
@@ -77,7 +83,7 @@ fn close_the_loop(cfg: SimConfig, effect_axes: &[&str]) -> Vec<String> {
             c0.summary()
         );
     }
-    kinds
+    (kinds, twin_model)
 }
 
 #[test]
@@ -150,6 +156,137 @@ fn unequal_parts() {
     cfg.spread = PartSpread::unequal_noise(0.7);
     let k = close_the_loop(cfg, &[]);
     assert!(k.iter().any(|k| k == "unequal_noise"), "{k:?}");
+}
+
+/// The peak of a sinusoid's Allan variance, `max sin⁴(x)/x²` = 0.5250 A² at πτ/P = 1.1656.
+const SINE_PEAK: f64 = 0.525;
+const SINE_PEAK_X: f64 = 1.165_561;
+
+/// The axis `name` of `model`.
+fn axis<'m>(model: &'m ClusterModel, name: &str) -> &'m twin::AxisModel {
+    model.axes.iter().find(|a| a.axis == name).unwrap()
+}
+
+/// A sinusoid's period within 1 % and amplitude within 20 % of what was injected.
+fn same_sinusoid(s: &twin::Sinusoid, period: f64, amp: f64) {
+    assert!(
+        (s.period_s / period - 1.0).abs() < 0.01,
+        "{s:?} vs {period} s"
+    );
+    assert!((s.amplitude / amp - 1.0).abs() < 0.2, "{s:?} vs {amp}");
+}
+
+#[test]
+fn shared_sinusoid_on_gyro_x() {
+    let mut cfg = config(BASE + 7);
+    // Period 600 s on gyro x of every group, 8× the cluster's AVAR at its peak (cluster ADEV ×3: two measured
+    // records compared are less sensitive than a record against its model).
+    let period = 600.0;
+    let tau_peak = SINE_PEAK_X * period / std::f64::consts::PI;
+    let amp = (8.0 * cluster_avar(&cfg, Channel::GyroAX, tau_peak) / SINE_PEAK).sqrt();
+    cfg.periodic.push(Periodic {
+        groups: None,
+        axes: vec![Axis::GyroX],
+        amplitude: amp,
+        period_s: period,
+        phase_rad: 0.7,
+    });
+    let (k, model) = close_the_loop_model(cfg, &["gx"]);
+    assert!(k.iter().any(|k| k == "periodic"), "{k:?}");
+    let p = axis(&model, "gx")
+        .shared
+        .iter()
+        .find(|p| p.kind == "periodic")
+        .unwrap();
+    assert_eq!(p.groups.len(), 16);
+    same_sinusoid(&p.sinusoids[0], period, amp);
+}
+
+#[test]
+fn one_accelerometers_sinusoid() {
+    let mut cfg = config(BASE + 8);
+    // Group 7's accel y alone: period 90 s, 3× its own AVAR at the sinusoid's peak (as the diagnosis's test).
+    let period = 90.0;
+    let tau_peak = SINE_PEAK_X * period / std::f64::consts::PI;
+    let amp = (3.0 * 16.0 * cluster_avar(&cfg, Channel::AccelY, tau_peak) / SINE_PEAK).sqrt();
+    cfg.periodic.push(Periodic {
+        groups: Some(vec![7]),
+        axes: vec![Axis::AccelY],
+        amplitude: amp,
+        period_s: period,
+        phase_rad: 0.0,
+    });
+    // One sensor in 16: the cluster and the typical sensor barely see it, so the twin without it is not refuted.
+    let (k, model) = close_the_loop_model(cfg, &[]);
+    assert!(k.iter().any(|k| k == "periodic"), "{k:?}");
+    let ay = axis(&model, "ay");
+    for s in &ay.sensors {
+        assert_eq!(
+            s.sinusoids.len(),
+            usize::from(s.group == 7),
+            "group {}",
+            s.group
+        );
+    }
+    same_sinusoid(&ay.sensors[7].sinusoids[0], period, amp);
+}
+
+#[test]
+fn one_gyros_bias_step() {
+    let mut cfg = config(BASE + 9);
+    // 0.1 °/s on group 5's z gyros at 30 % of the record (as the diagnosis's test).
+    let at = 0.3 * HOURS * 3600.0;
+    for channel in [Channel::GyroAZ, Channel::GyroBZ] {
+        cfg.outliers.push(Outlier {
+            group: 5,
+            channel,
+            noise_factor: 1.0,
+            step: 0.1,
+            step_at_s: at,
+            drift_per_h: 0.0,
+        });
+    }
+    let (k, model) = close_the_loop_model(cfg, &[]);
+    assert!(k.iter().any(|k| k == "bias_step"), "{k:?}");
+    let gz = axis(&model, "gz");
+    for s in &gz.sensors {
+        assert_eq!(
+            s.steps.len(),
+            usize::from(s.group == 5),
+            "group {}",
+            s.group
+        );
+    }
+    let step = gz.sensors[5].steps[0];
+    // Within the diagnosis's detection window (≤ 1 % of the record) and 20 % of the size.
+    assert!((step.at_s - at).abs() < 0.01 * HOURS * 3600.0, "{step:?}");
+    assert!((step.size / 0.1 - 1.0).abs() < 0.2, "{step:?}");
+}
+
+#[test]
+fn one_accelerometers_random_walk() {
+    let mut cfg = config(BASE + 10);
+    // Group 7's accel y alone gains a rate random walk (as the diagnosis's test: ×16 its AVAR at T/8).
+    let single = 16.0 * cluster_avar(&cfg, Channel::AccelY, TAU_LONG_S);
+    let k_rw = (3.0 * 15.0 * single / TAU_LONG_S).sqrt();
+    cfg.drift.push(CommonDrift {
+        groups: Some(vec![7]),
+        axes: vec![Axis::AccelY],
+        kind: DriftKind::RandomWalk { k: k_rw },
+    });
+    let (k, model) = close_the_loop_model(cfg, &[]);
+    assert!(k.iter().any(|k| k == "sensor_drift"), "{k:?}");
+    let ay = axis(&model, "ay");
+    let got = ay.sensors[7].independent.random_walk;
+    assert!((got / k_rw).ln().abs() < 2f64.ln(), "K {got} vs {k_rw}");
+    for s in ay.sensors.iter().filter(|s| s.group != 7) {
+        assert!(
+            s.independent.random_walk < got / 4.0,
+            "group {}: {:?}",
+            s.group,
+            s.independent
+        );
+    }
 }
 
 /// Real data: the MIMU4444's eight IMUs (`../shared/data/mimu4444`, or `MIMU4444_DIR`), the longest static interval

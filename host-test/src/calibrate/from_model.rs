@@ -270,6 +270,8 @@ mod tests {
                             mean: 0.0,
                             independent: own(g, a),
                             thermal_per_c: beta(g, a),
+                            sinusoids: Vec::new(),
+                            steps: Vec::new(),
                         })
                         .collect(),
                     shared: Vec::new(),
@@ -426,6 +428,7 @@ mod tests {
                     random_walk: 1e-3,
                     ..NoiseTerms::default()
                 },
+                sinusoids: Vec::new(),
             });
         }
         let with_shared = w_of(&m, region(1000.0, 1700.0));

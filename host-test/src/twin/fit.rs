@@ -10,6 +10,11 @@
 //!   sensor's long-τ estimation error (a handful of blocks) into the twin.
 //! - **Shared processes**: the terms the diagnosis fitted to each shared process; a member's independent terms are
 //!   its own less the processes it shares, term by term.
+//! - **One sensor's drift** (`sensor_drift`): the Allan-variance terms the diagnosis added to that sensor, added to
+//!   its own terms.
+//! - **Deterministic parts**, taken out of the series before any noise term is fitted: bias steps (`bias_step`) as
+//!   the diagnosis measured them; sinusoids (`periodic`) at the diagnosis's period, their amplitude and phase
+//!   refitted by least squares on the whole record (on the members' mean for a shared one).
 //! - **Temperature**: a line and up to two sinusoids (periods found by a least-squares scan), the rest as noise
 //!   terms ([`fit_temperature`]).
 
@@ -42,7 +47,8 @@ pub fn fit(rec: &Recording, report: &Report, source: &str) -> Result<ClusterMode
     let mut an = Analyzer::new();
     let mut axes = Vec::new();
     for af in &report.fitted {
-        axes.push(fit_axis(rec, af, temp, t_ref, tau0, &mut an)?);
+        let steps = axis_steps(report, af);
+        axes.push(fit_axis(rec, af, &steps, temp, t_ref, tau0, &mut an)?);
     }
     let effects = report
         .effects
@@ -73,9 +79,30 @@ pub fn fit(rec: &Recording, report: &Report, source: &str) -> Result<ClusterMode
     Ok(model)
 }
 
+/// The bias steps the diagnosis found on one axis: (index into the axis's sensors, step).
+fn axis_steps(report: &Report, af: &AxisFit) -> Vec<(usize, BiasStep)> {
+    let ax = crate::recording::AXIS_NAMES[af.axis].to_string();
+    report
+        .effects
+        .iter()
+        .filter(|e| e.kind == "bias_step" && e.sensor == af.kind.name() && e.axes == ax)
+        .filter_map(|e| {
+            let g = *e.groups.flat().first()?;
+            let i = af.groups.iter().position(|&x| x == g)?;
+            let p = e.params.get(&ax)?;
+            let step = BiasStep {
+                at_s: p.get("at_s")?.as_f64()?,
+                size: p.get("size")?.as_f64()?,
+            };
+            Some((i, step))
+        })
+        .collect()
+}
+
 fn fit_axis(
     rec: &Recording,
     af: &AxisFit,
+    steps: &[(usize, BiasStep)],
     temp: Option<&[f64]>,
     t_ref: Option<f64>,
     tau0: f64,
@@ -90,31 +117,15 @@ fn fit_axis(
         .groups
         .iter()
         .map(|&g| {
-            rec.columns
-                .iter()
-                .find(|c| c.kind == af.kind && c.axis == af.axis && c.group == g)
+            rec.find(af.kind, g, af.axis)
                 .map(|c| &c.data[..rec.len().min(c.data.len())])
                 .ok_or_else(|| TwinError::Invalid(format!("{label}: no column for group {g}")))
         })
         .collect::<Result<_, _>>()?;
     let ns = series.len();
-    // Thermal coefficients (summed if several thermal terms were chosen), and the series without them.
-    let mut beta = vec![0.0; ns];
-    for (_, c) in &af.cross {
-        if let Cross::Thermal { beta: b } = c {
-            beta.iter_mut().zip(b).for_each(|(x, y)| *x += y);
-        }
-    }
-    let cleaned: Vec<Vec<f64>> = series
-        .iter()
-        .zip(&beta)
-        .map(|(s, &b)| match (temp, t_ref) {
-            (Some(t), Some(r)) if b != 0.0 => {
-                s.iter().zip(t).map(|(x, t)| x - b * (t - r)).collect()
-            }
-            _ => s.to_vec(),
-        })
-        .collect();
+    let beta = thermal_coefficients(af, ns);
+    let mut cleaned = without_thermal(&series, &beta, temp, t_ref);
+    let det = remove_deterministic(&mut cleaned, af, steps, tau0);
     let points: Vec<Vec<AnalysisPoint>> = cleaned
         .iter()
         .map(|s| {
@@ -128,9 +139,160 @@ fn fit_axis(
         })
         .collect();
     let typical = fit_terms(&typical_points(&points));
-    // Unequal sensors: the typical terms scaled by the diagnosis's level factors (a per-sensor five-term fit would
-    // copy each sensor's long-τ estimation error, from a handful of blocks, into the twin).
-    let own: Vec<NoiseTerms> = match &af.level {
+    let own = own_terms(af, &typical, ns);
+    let mut shared = shared_processes(af, &cleaned, &own, tau0, an);
+    shared.extend(det.shared_sines.into_iter().map(|p| (p, Vec::new())));
+    let sensors = (0..ns)
+        .map(|i| {
+            let independent = shared
+                .iter()
+                .filter(|(_, members)| members.contains(&i))
+                .fold(own[i], |acc, (p, _)| acc.less(&p.terms));
+            SensorModel {
+                group: af.groups[i],
+                mean: crate::stats::mean(&cleaned[i]),
+                independent,
+                thermal_per_c: beta[i],
+                sinusoids: det.own_sines[i].clone(),
+                steps: det.steps[i].clone(),
+            }
+        })
+        .collect();
+    Ok(AxisModel {
+        axis: label,
+        unit: af.kind.unit().into(),
+        typical,
+        effects: af.effects.iter().map(|k| (*k).to_string()).collect(),
+        sensors,
+        shared: shared.into_iter().map(|(p, _)| p).collect(),
+    })
+}
+
+/// Each sensor's thermal coefficient (summed if several thermal terms were chosen).
+fn thermal_coefficients(af: &AxisFit, ns: usize) -> Vec<f64> {
+    let mut beta = vec![0.0; ns];
+    for (_, c) in &af.cross {
+        if let Cross::Thermal { beta: b } = c {
+            beta.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+        }
+    }
+    beta
+}
+
+/// The series with `β·(T − T_ref)` removed.
+fn without_thermal(
+    series: &[&[f64]],
+    beta: &[f64],
+    temp: Option<&[f64]>,
+    t_ref: Option<f64>,
+) -> Vec<Vec<f64>> {
+    series
+        .iter()
+        .zip(beta)
+        .map(|(s, &b)| match (temp, t_ref) {
+            (Some(t), Some(r)) if b != 0.0 => {
+                s.iter().zip(t).map(|(x, t)| x - b * (t - r)).collect()
+            }
+            _ => s.to_vec(),
+        })
+        .collect()
+}
+
+/// The deterministic parts of one axis, taken out of the series before its noise terms are fitted.
+struct Deterministic {
+    /// Per sensor, its own sinusoids.
+    own_sines: Vec<Vec<Sinusoid>>,
+    /// Per sensor, its bias steps.
+    steps: Vec<Vec<BiasStep>>,
+    /// Shared sinusoids, as processes of their own.
+    shared_sines: Vec<SharedProcess>,
+}
+
+/// Takes the bias steps (as the diagnosis measured them) and the sinusoids (at the diagnosis's periods; amplitude
+/// and phase refitted by least squares on the whole record: the members' mean for a shared one) out of `cleaned`,
+/// and returns them.
+fn remove_deterministic(
+    cleaned: &mut [Vec<f64>],
+    af: &AxisFit,
+    steps: &[(usize, BiasStep)],
+    tau0: f64,
+) -> Deterministic {
+    let ns = cleaned.len();
+    let mut det = Deterministic {
+        own_sines: vec![Vec::new(); ns],
+        steps: vec![Vec::new(); ns],
+        shared_sines: Vec::new(),
+    };
+    for &(i, step) in steps {
+        if let Some(s) = cleaned.get_mut(i) {
+            s.iter_mut()
+                .enumerate()
+                .filter(|(k, _)| *k as f64 * tau0 >= step.at_s)
+                .for_each(|(_, x)| *x -= step.size);
+            det.steps[i].push(step);
+        }
+    }
+    for (kind, c) in &af.cross {
+        match c {
+            Cross::OwnSine { sensor, sine } if *sensor < ns => {
+                if let Some(s) = fit_sine(&cleaned[*sensor], sine.period_s, tau0) {
+                    subtract(&mut cleaned[*sensor], &s, tau0);
+                    det.own_sines[*sensor].push(s);
+                }
+            }
+            Cross::SharedSine { members, sine } => {
+                let members: Vec<usize> = members.iter().copied().filter(|&i| i < ns).collect();
+                let mean = members_mean(cleaned, &members);
+                if let Some(s) = fit_sine(&mean, sine.period_s, tau0) {
+                    for &i in &members {
+                        subtract(&mut cleaned[i], &s, tau0);
+                    }
+                    det.shared_sines.push(SharedProcess {
+                        kind: (*kind).to_string(),
+                        groups: members.iter().map(|&i| af.groups[i]).collect(),
+                        terms: NoiseTerms::default(),
+                        sinusoids: vec![s],
+                    });
+                }
+            }
+            _ => {}
+        }
+    }
+    det
+}
+
+/// The least-squares sinusoid of period `period_s` through `y` (about its mean), sample k at k·`tau0`.
+fn fit_sine(y: &[f64], period_s: f64, tau0: f64) -> Option<Sinusoid> {
+    let m = crate::stats::mean(y);
+    let points = y.iter().enumerate().map(|(k, x)| (k as f64 * tau0, x - m));
+    let f = crate::stats::fit_sinusoid(points, std::f64::consts::TAU / period_s)?;
+    // a·sin(ωt) + b·cos(ωt) = A·sin(ωt + φ) with A cos φ = a, A sin φ = b.
+    Some(Sinusoid {
+        period_s,
+        amplitude: f.amplitude(),
+        phase_rad: f.cos.atan2(f.sin),
+    })
+}
+
+fn subtract(y: &mut [f64], s: &Sinusoid, tau0: f64) {
+    y.iter_mut()
+        .enumerate()
+        .for_each(|(k, x)| *x -= s.at(k as f64 * tau0));
+}
+
+/// The sample-by-sample mean of the `members`' series.
+fn members_mean(series: &[Vec<f64>], members: &[usize]) -> Vec<f64> {
+    let len = series.first().map_or(0, Vec::len);
+    (0..len)
+        .map(|k| members.iter().map(|&i| series[i][k]).sum::<f64>() / members.len() as f64)
+        .collect()
+}
+
+/// Each sensor's own terms: the typical ones, scaled by the diagnosis's level factors where it found unequal
+/// sensors (a per-sensor five-term fit would copy each sensor's long-τ estimation error, from a handful of blocks,
+/// into the twin), plus the slow process the diagnosis found on one sensor (`sensor_drift`).
+fn own_terms(af: &AxisFit, typical: &NoiseTerms, ns: usize) -> Vec<NoiseTerms> {
+    let mut own: Vec<NoiseTerms> = match &af.level {
         Some(q) if q.len() == ns => q
             .iter()
             .map(|&q| {
@@ -139,10 +301,30 @@ fn fit_axis(
                 )
             })
             .collect(),
-        _ => vec![typical; ns],
+        _ => vec![*typical; ns],
     };
-    // Shared processes: one per set of members (the diagnosis may name two on the same sensors, e.g. a common mode
-    // and a common drift: their sum is what the record shows), their terms refitted on the whole record.
+    for (_, c) in &af.cross {
+        if let Cross::Own { sensor, part } = c
+            && let Some(o) = own.get_mut(*sensor)
+        {
+            let mut c = o.avar_coefficients();
+            c.iter_mut().zip(part.0).for_each(|(a, b)| *a += b.max(0.0));
+            *o = NoiseTerms::from_avar_coefficients(c);
+        }
+    }
+    own
+}
+
+/// The shared processes of one axis, each with its members (indices into the axis's sensors): one per set of
+/// members (the diagnosis may name two on the same sensors, e.g. a common mode and a common drift: their sum is
+/// what the record shows), their terms refitted on the whole record where the sets are disjoint.
+fn shared_processes(
+    af: &AxisFit,
+    cleaned: &[Vec<f64>],
+    own: &[NoiseTerms],
+    tau0: f64,
+    an: &mut Analyzer,
+) -> Vec<(SharedProcess, Vec<usize>)> {
     let mut sets: Vec<(Vec<usize>, Vec<&'static str>, Terms)> = Vec::new();
     for (kind, c) in &af.cross {
         if let Cross::Shared { members, share } = c {
@@ -166,16 +348,12 @@ fn fit_axis(
             .iter()
             .all(|(b, _, _)| a.iter().all(|x| !b.contains(x)))
     });
-    let shared: Vec<(SharedProcess, Vec<usize>)> = sets
-        .into_iter()
+    sets.into_iter()
         .map(|(members, kinds, diag)| {
-            let mean: Vec<f64> = (0..cleaned[0].len())
-                .map(|k| members.iter().map(|&i| cleaned[i][k]).sum::<f64>() / members.len() as f64)
-                .collect();
             let terms = if disjoint {
                 let pts = an.analyze(
                     DevKind::Oadev,
-                    &mean,
+                    &members_mean(cleaned, &members),
                     tau0,
                     &TauSpec::Octave,
                     &AllanOptions::default(),
@@ -193,33 +371,12 @@ fn fit_axis(
                         .filter_map(|&i| af.groups.get(i).copied())
                         .collect(),
                     terms,
+                    sinusoids: Vec::new(),
                 },
                 members,
             )
         })
-        .collect();
-    let sensors = (0..ns)
-        .map(|i| {
-            let independent = shared
-                .iter()
-                .filter(|(_, members)| members.contains(&i))
-                .fold(own[i], |acc, (p, _)| acc.less(&p.terms));
-            SensorModel {
-                group: af.groups[i],
-                mean: crate::stats::mean(&cleaned[i]),
-                independent,
-                thermal_per_c: beta[i],
-            }
-        })
-        .collect();
-    Ok(AxisModel {
-        axis: label,
-        unit: af.kind.unit().into(),
-        typical,
-        effects: af.effects.iter().map(|k| (*k).to_string()).collect(),
-        sensors,
-        shared: shared.into_iter().map(|(p, _)| p).collect(),
-    })
+        .collect()
 }
 
 /// The terms of a process shared by `own.len()` sensors, from the Allan variance of their mean (`points`): with a

@@ -22,7 +22,10 @@ pub use fit::fit;
 pub use play::{PlayOptions, play};
 
 /// The format tag of a model file; a file with another tag is refused.
-pub const FORMAT: &str = "imu-cluster-twin/1";
+pub const FORMAT: &str = "imu-cluster-twin/2";
+/// The previous format, still read: format 2 added the sensors' and shared processes' sinusoids and the sensors'
+/// bias steps (a format-1 file has none).
+pub const FORMAT_1: &str = "imu-cluster-twin/1";
 
 /// Why a model could not be fitted, read, written or played.
 #[derive(Debug, thiserror::Error)]
@@ -147,17 +150,60 @@ pub struct SensorModel {
     pub independent: NoiseTerms,
     /// Thermal coefficient, unit/°C, about the temperature model's reference (0 without a thermal effect).
     pub thermal_per_c: f64,
+    /// Its own sinusoidal interference (`periodic` on one sensor).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sinusoids: Vec<Sinusoid>,
+    /// Steps of its bias (`bias_step`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub steps: Vec<BiasStep>,
+}
+
+/// A sinusoid, `amplitude · sin(2π·t / period_s + phase_rad)` with t from the record's first sample, unit.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Sinusoid {
+    /// Period, s.
+    pub period_s: f64,
+    /// Amplitude, unit.
+    pub amplitude: f64,
+    /// Phase at t = 0, rad.
+    pub phase_rad: f64,
+}
+
+impl Sinusoid {
+    /// Its value at `t_s`.
+    pub fn at(&self, t_s: f64) -> f64 {
+        self.amplitude * (std::f64::consts::TAU * t_s / self.period_s + self.phase_rad).sin()
+    }
+
+    fn is_valid(&self) -> bool {
+        self.period_s.is_finite()
+            && self.period_s > 0.0
+            && self.amplitude.is_finite()
+            && self.phase_rad.is_finite()
+    }
+}
+
+/// A step of a sensor's bias: `size` added from `at_s` (from the record's first sample) on.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BiasStep {
+    /// Time of the step, s.
+    pub at_s: f64,
+    /// Size, unit.
+    pub size: f64,
 }
 
 /// A process that several sensors of one axis share (the same realisation added to each).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SharedProcess {
-    /// The effect it models: `common_mode`, `block_common_mode` or `common_mode_drift`.
+    /// The effect it models: `common_mode`, `block_common_mode`, `common_mode_drift` or `periodic`.
     pub kind: String,
     /// Groups that share it.
     pub groups: Vec<usize>,
     /// Its terms.
     pub terms: NoiseTerms,
+    /// Sinusoids in it (`periodic`, shared).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sinusoids: Vec<Sinusoid>,
 }
 
 /// One axis of the cluster.
@@ -268,10 +314,13 @@ impl ClusterModel {
             path: path.into(),
             reason,
         };
-        let m: ClusterModel = toml::from_str(text).map_err(|e| format(e.to_string()))?;
+        let mut m: ClusterModel = toml::from_str(text).map_err(|e| format(e.to_string()))?;
+        if m.format == FORMAT_1 {
+            m.format = FORMAT.into();
+        }
         if m.format != FORMAT {
             return Err(format(format!(
-                "format \"{}\", expected \"{FORMAT}\"",
+                "format \"{}\", expected \"{FORMAT}\" (or \"{FORMAT_1}\")",
                 m.format
             )));
         }
@@ -330,9 +379,17 @@ impl ClusterModel {
                 )));
             }
             for s in &a.sensors {
-                if !ok(&s.independent) || !s.mean.is_finite() || !s.thermal_per_c.is_finite() {
+                if !ok(&s.independent)
+                    || !s.mean.is_finite()
+                    || !s.thermal_per_c.is_finite()
+                    || !s.sinusoids.iter().all(Sinusoid::is_valid)
+                    || !s
+                        .steps
+                        .iter()
+                        .all(|b| b.at_s.is_finite() && b.size.is_finite())
+                {
                     return Err(TwinError::Invalid(format!(
-                        "{} group {}: terms must be finite and ≥ 0",
+                        "{} group {}: terms must be finite and ≥ 0, sinusoids and steps finite (periods > 0)",
                         a.axis, s.group
                     )));
                 }
@@ -344,9 +401,9 @@ impl ClusterModel {
                 }
             }
             for p in &a.shared {
-                if !ok(&p.terms) {
+                if !ok(&p.terms) || !p.sinusoids.iter().all(Sinusoid::is_valid) {
                     return Err(TwinError::Invalid(format!(
-                        "{} {}: terms must be finite and ≥ 0",
+                        "{} {}: terms must be finite and ≥ 0, sinusoids finite (periods > 0)",
                         a.axis, p.kind
                     )));
                 }

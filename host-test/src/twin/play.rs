@@ -1,8 +1,8 @@
 //! A synthetic recording of the modelled cluster: each sensor is its mean, its own noise (the simulator's
 //! generators: `sim::noise::SensorNoise` for Q, N, B and K; the ramp R as a line), its thermal coefficient times
-//! the temperature's departure from the reference, and the shared processes it belongs to (one realisation per
-//! process, added to every member). Without effects, every sensor plays the typical terms alone: the √N model
-//! the diagnosis starts from.
+//! the temperature's departure from the reference, its own sinusoids and bias steps, and the shared processes it
+//! belongs to (one realisation per process, added to every member; a shared sinusoid is the same on every member).
+//! Without effects, every sensor plays the typical terms alone: the √N model the diagnosis starts from.
 
 use super::*;
 use crate::recording::{Column, Recording};
@@ -81,6 +81,19 @@ pub fn temperature(
     Ok(v)
 }
 
+/// Adds `sinusoids` and bias `steps` to `series` (sample k at k·`dt_s`).
+fn add_deterministic(series: &mut [f64], sinusoids: &[Sinusoid], steps: &[BiasStep], dt_s: f64) {
+    for (k, x) in series.iter_mut().enumerate() {
+        let t = k as f64 * dt_s;
+        *x += sinusoids.iter().map(|s| s.at(t)).sum::<f64>();
+        *x += steps
+            .iter()
+            .filter(|b| t >= b.at_s)
+            .map(|b| b.size)
+            .sum::<f64>();
+    }
+}
+
 /// Plays `model` (see the module docs).
 pub fn play(model: &ClusterModel, opts: &PlayOptions) -> Result<Recording, TwinError> {
     model.validate()?;
@@ -127,15 +140,14 @@ pub fn play(model: &ClusterModel, opts: &PlayOptions) -> Result<Recording, TwinE
                 .iter()
                 .enumerate()
                 .map(|(pi, p)| {
-                    Ok((
-                        noise(
-                            &p.terms,
-                            &sampling,
-                            n,
-                            mix(opts.seed, 1 + ai as u64, 1000 + pi as u64, 0),
-                        )?,
-                        p,
-                    ))
+                    let mut series = noise(
+                        &p.terms,
+                        &sampling,
+                        n,
+                        mix(opts.seed, 1 + ai as u64, 1000 + pi as u64, 0),
+                    )?;
+                    add_deterministic(&mut series, &p.sinusoids, &[], sampling.dt_s);
+                    Ok((series, p))
                 })
                 .collect::<Result<_, TwinError>>()?
         };
@@ -156,6 +168,9 @@ pub fn play(model: &ClusterModel, opts: &PlayOptions) -> Result<Recording, TwinE
                 if p.groups.contains(&s.group) {
                     data.iter_mut().zip(series).for_each(|(x, y)| *x += y);
                 }
+            }
+            if !opts.without_effects {
+                add_deterministic(&mut data, &s.sinusoids, &s.steps, sampling.dt_s);
             }
             if let (false, Some(t)) = (opts.without_effects, &temp)
                 && s.thermal_per_c != 0.0

@@ -27,12 +27,15 @@ fn model() -> ClusterModel {
                 mean: 0.1 * g as f64,
                 independent: terms(0.01, 0.001, 1e-5),
                 thermal_per_c: 0.0,
+                sinusoids: Vec::new(),
+                steps: Vec::new(),
             })
             .collect(),
         shared: vec![SharedProcess {
             kind: "common_mode".into(),
             groups: vec![0, 1, 2, 3],
             terms: terms(0.0, 0.004, 0.0),
+            sinusoids: Vec::new(),
         }],
     };
     let az = AxisModel {
@@ -47,6 +50,8 @@ fn model() -> ClusterModel {
                 mean: 1.0,
                 independent: terms(1e-4, 0.0, 0.0),
                 thermal_per_c: 2e-4,
+                sinusoids: Vec::new(),
+                steps: Vec::new(),
             })
             .collect(),
         shared: vec![],
@@ -307,4 +312,81 @@ fn compare_tells_a_different_cluster_from_a_fresh_record() {
     // The simulation is the noisier one: the scan of −z fires.
     let az = diff.axes.iter().find(|x| x.axis == "az").unwrap();
     assert!(az.cluster.scan[1] > az.cluster.threshold);
+}
+
+/// Format 2's sinusoids and steps round-trip, a format-1 file (none of them) still reads, and the played record
+/// carries them exactly: a sensor's step and sinusoid, a shared sinusoid on its members only, none without effects.
+#[test]
+fn sinusoids_and_steps_are_kept_and_played() {
+    let mut m = model();
+    let v1 = m.to_toml().unwrap().replace(FORMAT, FORMAT_1);
+    assert_eq!(ClusterModel::from_toml(&v1, "v1.toml").unwrap(), m);
+    let own = Sinusoid {
+        period_s: 50.0,
+        amplitude: 0.3,
+        phase_rad: 0.4,
+    };
+    let shared = Sinusoid {
+        period_s: 300.0,
+        amplitude: 0.2,
+        phase_rad: -1.0,
+    };
+    let step = BiasStep {
+        at_s: 1000.0,
+        size: 0.5,
+    };
+    m.axes[0].sensors[2].sinusoids.push(own);
+    m.axes[0].sensors[2].steps.push(step);
+    m.axes[0].shared.push(SharedProcess {
+        kind: "periodic".into(),
+        groups: vec![1, 2],
+        terms: NoiseTerms::default(),
+        sinusoids: vec![shared],
+    });
+    let text = m.to_toml().unwrap();
+    assert_eq!(ClusterModel::from_toml(&text, "m.toml").unwrap(), m);
+    let mut bad = m.clone();
+    bad.axes[0].sensors[2].sinusoids[0].period_s = 0.0;
+    assert!(bad.validate().is_err());
+
+    // The deterministic parts against the played record with them and without them (same seed, same noise).
+    let play = |m: &ClusterModel| {
+        play(
+            m,
+            &PlayOptions {
+                seed: 5,
+                ..Default::default()
+            },
+        )
+        .unwrap()
+    };
+    let mut plain = m.clone();
+    plain.axes[0].sensors[2].sinusoids.clear();
+    plain.axes[0].sensors[2].steps.clear();
+    plain.axes[0].shared.pop();
+    let (with, without) = (play(&m), play(&plain));
+    for g in 0..6 {
+        let (a, b) = (
+            &with.find(SensorKind::Gyro, g, 0).unwrap().data,
+            &without.find(SensorKind::Gyro, g, 0).unwrap().data,
+        );
+        for (k, (x, y)) in a.iter().zip(b).enumerate().step_by(97) {
+            let t = k as f64 / 10.0;
+            let sine = |s: &Sinusoid| {
+                s.amplitude * (std::f64::consts::TAU * t / s.period_s + s.phase_rad).sin()
+            };
+            let mut want = 0.0;
+            if g == 1 || g == 2 {
+                want += sine(&shared);
+            }
+            if g == 2 {
+                want += sine(&own) + if t >= step.at_s { step.size } else { 0.0 };
+            }
+            assert!(
+                (x - y - want).abs() < 1e-12,
+                "group {g}, t {t}: {} vs {want}",
+                x - y
+            );
+        }
+    }
 }
