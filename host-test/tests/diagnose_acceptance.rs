@@ -11,7 +11,7 @@ use common::effects::*;
 use host_test::diagnose::{Effect, Groups, Options, Report, diagnose};
 use host_test::recording::Recording;
 use host_test::sim::{
-    Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, Periodic, SimConfig,
+    Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, SimConfig,
 };
 use host_test::simcli::recording;
 
@@ -287,14 +287,7 @@ fn seed_experiment_names_a_shared_flicker_on_gyro_y() {
 #[test]
 fn one_accelerometers_random_walk_is_its_own_drift_not_a_shared_one() {
     let mut cfg = config(SEED + 20);
-    // Group 7's accel y alone gains a rate random walk: ×16 its AVAR at T/8 (ADEV ×4), the cluster's ×2 there.
-    let single = 16.0 * cluster_avar(&cfg, Channel::AccelY, TAU_LONG_S);
-    let k = (3.0 * 15.0 * single / TAU_LONG_S).sqrt();
-    cfg.drift.push(CommonDrift {
-        groups: Some(vec![7]),
-        axes: vec![Axis::AccelY],
-        kind: DriftKind::RandomWalk { k },
-    });
+    let k = one_sensor_random_walk(&mut cfg, 7, (Axis::AccelY, Channel::AccelY));
     let r = run(cfg, true);
     assert!(
         r.effects.iter().all(|e| e.kind != "common_mode_drift"),
@@ -326,16 +319,7 @@ fn one_gyros_bias_step_is_found_with_its_time_and_size() {
     let mut cfg = config(SEED + 21);
     // 0.1 °/s on group 5's z gyros (both z sensors, so the gz output steps by 0.1) at 30 % of the record.
     let at = 0.3 * HOURS * 3600.0;
-    for channel in [Channel::GyroAZ, Channel::GyroBZ] {
-        cfg.outliers.push(Outlier {
-            group: 5,
-            channel,
-            noise_factor: 1.0,
-            step: 0.1,
-            step_at_s: at,
-            drift_per_h: 0.0,
-        });
-    }
+    gyro_z_step(&mut cfg, 5, 0.1, at);
     let r = run(cfg, true);
     let e = only(&r, "bias_step");
     assert_eq!(
@@ -355,25 +339,20 @@ fn one_gyros_bias_step_is_found_with_its_time_and_size() {
     assert!((size / 0.1 - 1.0).abs() < 0.2, "size {size} vs 0.1");
 }
 
-/// The peak of a sinusoid's Allan variance, `max sin⁴(x)/x²` = 0.5250 A² at πτ/P = 1.1656.
-const SINE_PEAK: f64 = 0.525;
-const SINE_PEAK_X: f64 = 1.165_561;
-
 #[test]
 fn shared_sinusoid_on_gyro_x_is_periodic_with_its_period() {
     let mut cfg = config(SEED + 22);
     // Period 600 s on gyro x of every group; at its Allan-variance peak (τ ≈ 223 s) it adds 3× the cluster's AVAR
     // there (cluster ADEV ×2), a sixteenth of that to a single sensor's.
     let period = 600.0;
-    let tau_peak = SINE_PEAK_X * period / std::f64::consts::PI;
-    let amp = (3.0 * cluster_avar(&cfg, Channel::GyroAX, tau_peak) / SINE_PEAK).sqrt();
-    cfg.periodic.push(Periodic {
-        groups: None,
-        axes: vec![Axis::GyroX],
-        amplitude: amp,
-        period_s: period,
-        phase_rad: 0.7,
-    });
+    let amp = sinusoid(
+        &mut cfg,
+        None,
+        (Axis::GyroX, Channel::GyroAX),
+        period,
+        3.0,
+        0.7,
+    );
     let r = run(cfg, true);
     let e = only(&r, "periodic");
     assert_eq!(
@@ -406,16 +385,14 @@ fn one_accelerometers_sinusoid_is_its_own_periodic() {
     let mut cfg = config(SEED + 23);
     // Group 7's accel y alone: period 90 s, 3× its own AVAR at the sinusoid's peak (τ ≈ 33 s).
     let period = 90.0;
-    let tau_peak = SINE_PEAK_X * period / std::f64::consts::PI;
-    let single = 16.0 * cluster_avar(&cfg, Channel::AccelY, tau_peak);
-    let amp = (3.0 * single / SINE_PEAK).sqrt();
-    cfg.periodic.push(Periodic {
-        groups: Some(vec![7]),
-        axes: vec![Axis::AccelY],
-        amplitude: amp,
-        period_s: period,
-        phase_rad: 0.0,
-    });
+    let amp = sinusoid(
+        &mut cfg,
+        Some(vec![7]),
+        (Axis::AccelY, Channel::AccelY),
+        period,
+        3.0 * 16.0,
+        0.0,
+    );
     let r = run(cfg, true);
     let e = only(&r, "periodic");
     assert_eq!(

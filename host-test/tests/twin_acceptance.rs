@@ -9,7 +9,7 @@ mod common;
 use common::effects::*;
 use host_test::diagnose::{Options, diagnose};
 use host_test::sim::{
-    Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, Periodic, SimConfig,
+    Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, SimConfig,
 };
 use host_test::simcli::recording;
 use host_test::twin::{self, ClusterModel, CompareOptions, PlayOptions};
@@ -158,10 +158,6 @@ fn unequal_parts() {
     assert!(k.iter().any(|k| k == "unequal_noise"), "{k:?}");
 }
 
-/// The peak of a sinusoid's Allan variance, `max sin⁴(x)/x²` = 0.5250 A² at πτ/P = 1.1656.
-const SINE_PEAK: f64 = 0.525;
-const SINE_PEAK_X: f64 = 1.165_561;
-
 /// The axis `name` of `model`.
 fn axis<'m>(model: &'m ClusterModel, name: &str) -> &'m twin::AxisModel {
     model.axes.iter().find(|a| a.axis == name).unwrap()
@@ -182,15 +178,14 @@ fn shared_sinusoid_on_gyro_x() {
     // Period 600 s on gyro x of every group, 8× the cluster's AVAR at its peak (cluster ADEV ×3: two measured
     // records compared are less sensitive than a record against its model).
     let period = 600.0;
-    let tau_peak = SINE_PEAK_X * period / std::f64::consts::PI;
-    let amp = (8.0 * cluster_avar(&cfg, Channel::GyroAX, tau_peak) / SINE_PEAK).sqrt();
-    cfg.periodic.push(Periodic {
-        groups: None,
-        axes: vec![Axis::GyroX],
-        amplitude: amp,
-        period_s: period,
-        phase_rad: 0.7,
-    });
+    let amp = sinusoid(
+        &mut cfg,
+        None,
+        (Axis::GyroX, Channel::GyroAX),
+        period,
+        8.0,
+        0.7,
+    );
     let (k, model) = close_the_loop_model(cfg, &["gx"]);
     assert!(k.iter().any(|k| k == "periodic"), "{k:?}");
     let p = axis(&model, "gx")
@@ -207,15 +202,14 @@ fn one_accelerometers_sinusoid() {
     let mut cfg = config(BASE + 8);
     // Group 7's accel y alone: period 90 s, 3× its own AVAR at the sinusoid's peak (as the diagnosis's test).
     let period = 90.0;
-    let tau_peak = SINE_PEAK_X * period / std::f64::consts::PI;
-    let amp = (3.0 * 16.0 * cluster_avar(&cfg, Channel::AccelY, tau_peak) / SINE_PEAK).sqrt();
-    cfg.periodic.push(Periodic {
-        groups: Some(vec![7]),
-        axes: vec![Axis::AccelY],
-        amplitude: amp,
-        period_s: period,
-        phase_rad: 0.0,
-    });
+    let amp = sinusoid(
+        &mut cfg,
+        Some(vec![7]),
+        (Axis::AccelY, Channel::AccelY),
+        period,
+        3.0 * 16.0,
+        0.0,
+    );
     // One sensor in 16: the cluster and the typical sensor barely see it, so the twin without it is not refuted.
     let (k, model) = close_the_loop_model(cfg, &[]);
     assert!(k.iter().any(|k| k == "periodic"), "{k:?}");
@@ -236,16 +230,7 @@ fn one_gyros_bias_step() {
     let mut cfg = config(BASE + 9);
     // 0.1 °/s on group 5's z gyros at 30 % of the record (as the diagnosis's test).
     let at = 0.3 * HOURS * 3600.0;
-    for channel in [Channel::GyroAZ, Channel::GyroBZ] {
-        cfg.outliers.push(Outlier {
-            group: 5,
-            channel,
-            noise_factor: 1.0,
-            step: 0.1,
-            step_at_s: at,
-            drift_per_h: 0.0,
-        });
-    }
+    gyro_z_step(&mut cfg, 5, 0.1, at);
     let (k, model) = close_the_loop_model(cfg, &[]);
     assert!(k.iter().any(|k| k == "bias_step"), "{k:?}");
     let gz = axis(&model, "gz");
@@ -267,13 +252,7 @@ fn one_gyros_bias_step() {
 fn one_accelerometers_random_walk() {
     let mut cfg = config(BASE + 10);
     // Group 7's accel y alone gains a rate random walk (as the diagnosis's test: ×16 its AVAR at T/8).
-    let single = 16.0 * cluster_avar(&cfg, Channel::AccelY, TAU_LONG_S);
-    let k_rw = (3.0 * 15.0 * single / TAU_LONG_S).sqrt();
-    cfg.drift.push(CommonDrift {
-        groups: Some(vec![7]),
-        axes: vec![Axis::AccelY],
-        kind: DriftKind::RandomWalk { k: k_rw },
-    });
+    let k_rw = one_sensor_random_walk(&mut cfg, 7, (Axis::AccelY, Channel::AccelY));
     let (k, model) = close_the_loop_model(cfg, &[]);
     assert!(k.iter().any(|k| k == "sensor_drift"), "{k:?}");
     let ay = axis(&model, "ay");

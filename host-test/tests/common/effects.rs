@@ -4,7 +4,10 @@
 use host_test::allan::{DevKind, deviation};
 use host_test::diagnose::Groups;
 use host_test::sim::preset::seed_config;
-use host_test::sim::{Axis, Channel, CommonMode, SimConfig, Simulator, Thermal};
+use host_test::sim::{
+    Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, Periodic, SimConfig, Simulator,
+    Thermal,
+};
 
 pub const SEED: u64 = 7_200_001;
 pub const RATE_HZ: f64 = 5.0;
@@ -72,4 +75,61 @@ pub fn blocks(cfg: &mut SimConfig, size: usize, axes: &[Axis], rho: f64) -> Grou
         out.push(g);
     }
     Groups::Blocks(out)
+}
+
+/// The peak of a sinusoid's Allan variance, `max sin⁴(x)/x²` = 0.5250 A² at πτ/P = 1.1656.
+pub const SINE_PEAK: f64 = 0.525;
+pub const SINE_PEAK_X: f64 = 1.165_561;
+
+/// Adds a sinusoid of `period_s` on `axis` of `groups` (`None`: all) whose Allan variance at its peak is `added` ×
+/// the cluster's AVAR of `channel` there (one sensor's own AVAR is 16 × the cluster's); returns its amplitude.
+pub fn sinusoid(
+    cfg: &mut SimConfig,
+    groups: Option<Vec<usize>>,
+    (axis, channel): (Axis, Channel),
+    period_s: f64,
+    added: f64,
+    phase_rad: f64,
+) -> f64 {
+    let tau_peak = SINE_PEAK_X * period_s / std::f64::consts::PI;
+    let amplitude = (added * cluster_avar(cfg, channel, tau_peak) / SINE_PEAK).sqrt();
+    cfg.periodic.push(Periodic {
+        groups,
+        axes: vec![axis],
+        amplitude,
+        period_s,
+        phase_rad,
+    });
+    amplitude
+}
+
+/// A bias step of `size` (°/s) on both z gyros of `group` at `at_s`: that group's gz output steps by `size`.
+pub fn gyro_z_step(cfg: &mut SimConfig, group: usize, size: f64, at_s: f64) {
+    for channel in [Channel::GyroAZ, Channel::GyroBZ] {
+        cfg.outliers.push(Outlier {
+            group,
+            channel,
+            noise_factor: 1.0,
+            step: size,
+            step_at_s: at_s,
+            drift_per_h: 0.0,
+        });
+    }
+}
+
+/// `group`'s `axis` alone gains a rate random walk: ×16 its AVAR at T/8 (ADEV ×4), the cluster's ×2 there;
+/// returns its K.
+pub fn one_sensor_random_walk(
+    cfg: &mut SimConfig,
+    group: usize,
+    (axis, channel): (Axis, Channel),
+) -> f64 {
+    let single = 16.0 * cluster_avar(cfg, channel, TAU_LONG_S);
+    let k = (3.0 * 15.0 * single / TAU_LONG_S).sqrt();
+    cfg.drift.push(CommonDrift {
+        groups: Some(vec![group]),
+        axes: vec![axis],
+        kind: DriftKind::RandomWalk { k },
+    });
+    k
 }
