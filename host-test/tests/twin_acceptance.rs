@@ -165,11 +165,7 @@ fn axis<'m>(model: &'m ClusterModel, name: &str) -> &'m twin::AxisModel {
 
 /// A sinusoid's period within 1 % and amplitude within 20 % of what was injected.
 fn same_sinusoid(s: &twin::Sinusoid, period: f64, amp: f64) {
-    assert!(
-        (s.period_s / period - 1.0).abs() < 0.01,
-        "{s:?} vs {period} s"
-    );
-    assert!((s.amplitude / amp - 1.0).abs() < 0.2, "{s:?} vs {amp}");
+    same_period_and_amplitude(s.period_s, s.amplitude, period, amp);
 }
 
 #[test]

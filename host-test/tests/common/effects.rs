@@ -133,3 +133,15 @@ pub fn one_sensor_random_walk(
     });
     k
 }
+
+/// A fitted sinusoid's period within 1 % and amplitude within 20 % of the injected `period` and `amp`.
+pub fn same_period_and_amplitude(got_period: f64, got_amp: f64, period: f64, amp: f64) {
+    assert!(
+        (got_period / period - 1.0).abs() < 0.01,
+        "period {got_period} s vs {period} s"
+    );
+    assert!(
+        (got_amp / amp - 1.0).abs() < 0.2,
+        "amplitude {got_amp} vs {amp}"
+    );
+}
