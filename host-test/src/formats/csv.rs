@@ -18,6 +18,8 @@ use std::path::Path;
 
 mod parse;
 use parse::*;
+#[doc(hidden)]
+pub use parse::{PieceParser, general_cell, parse_chunk};
 
 pub use crate::recording::{
     AXIS_NAMES, AxisMean, Column, Recording, SensorKind, column_name, parse_column_name,
@@ -188,7 +190,19 @@ impl Recording {
         size_hint: u64,
         name: &str,
     ) -> Result<(Recording, Vec<String>), CsvError> {
-        Self::parse_blocks(src, size_hint, name, BLOCK_BYTES)
+        Self::parse_blocks(src, size_hint, name, BLOCK_BYTES, parse_chunk)
+    }
+
+    /// [`Self::parse_from`] with another parser of each piece of a block: for the like-for-like comparison with
+    /// the `csv` crate (`examples/csv_crate_blocks.rs`), where everything but the pieces' parsing is the same.
+    #[doc(hidden)]
+    pub fn parse_from_with(
+        src: impl std::io::Read + Send,
+        size_hint: u64,
+        name: &str,
+        piece: PieceParser,
+    ) -> Result<(Recording, Vec<String>), CsvError> {
+        Self::parse_blocks(src, size_hint, name, BLOCK_BYTES, piece)
     }
 
     /// [`Self::parse_from`] with blocks of `block` bytes. Phases: the header found and read, the blocks of the
@@ -198,6 +212,7 @@ impl Recording {
         size_hint: u64,
         name: &str,
         block: usize,
+        piece: PieceParser,
     ) -> Result<(Recording, Vec<String>), CsvError> {
         let block = block.max(1);
         let mut cur = Vec::new();
@@ -216,6 +231,7 @@ impl Recording {
         let layout = Layout {
             target_of: &head.target_of,
             names: &names,
+            piece,
         };
         // The header line ends at `line_end` (before any "\r\n"); the body starts after its '\n'.
         let body_start = cur
