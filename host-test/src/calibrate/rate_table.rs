@@ -340,12 +340,8 @@ fn accel_forward(
     })
 }
 
-/// Fits one group (see the module docs). Needs records that excite every axis of both sensors (the standard
-/// design does) and finite values.
-pub fn fit_rate_table_group(
-    records: &[RateRecord],
-    opts: &RateTableOptions,
-) -> Result<RateTableFit, CalibError> {
+/// Every value of the `records` finite, and at least 5 of them.
+fn check_records(records: &[RateRecord]) -> Result<(), CalibError> {
     if records.iter().any(|r| {
         !r.rate_dps
             .iter()
@@ -362,6 +358,65 @@ pub fn fit_rate_table_group(
             found: records.len(),
         });
     }
+    Ok(())
+}
+
+fn degenerate() -> CalibError {
+    CalibError::Degenerate("matrix inversion failed near the estimate")
+}
+
+fn v3(v: Vec<f64>) -> Vec3 {
+    [v[0], v[1], v[2]]
+}
+
+/// Standard errors of the calibrated rate (°/s) at the true rate `input`, by linear propagation of the gyro fit's
+/// covariance `cov_g` (`theta_g` the forward fit, `w` its channel weights).
+fn rate_se(
+    theta_g: &DVector<f64>,
+    cov_g: &DMatrix<f64>,
+    w: &[f64; 4],
+    input: Vec3,
+) -> Result<Vec3, CalibError> {
+    let raw0: [f64; 4] = core::array::from_fn(|c| {
+        (0..3).map(|k| theta_g[4 * c + k] * input[k]).sum::<f64>() + theta_g[4 * c + 3]
+    });
+    let out = move |t: &DVector<f64>| {
+        gyro_inverse(t, w).map(|(m, b)| {
+            let d = nalgebra::Vector4::from_fn(|c, _| raw0[c] - b[c]);
+            DVector::from_column_slice((m * d).as_slice())
+        })
+    };
+    Ok(v3(se(
+        &jacobian(theta_g, &out).ok_or_else(degenerate)?,
+        cov_g,
+    )))
+}
+
+/// Standard errors of the calibrated specific force (g) at the true `input`, by linear propagation of the
+/// accelerometer fit's covariance `cov_a` (`theta_a` the forward fit).
+fn accel_se(theta_a: &DVector<f64>, cov_a: &DMatrix<f64>, input: Vec3) -> Result<Vec3, CalibError> {
+    let raw0: Vec3 = core::array::from_fn(|c| {
+        (0..3).map(|k| theta_a[4 * c + k] * input[k]).sum::<f64>() + theta_a[4 * c + 3]
+    });
+    let out = move |t: &DVector<f64>| {
+        accel_inverse(t).map(|(m, b)| {
+            let d = Vector3::from_fn(|c, _| raw0[c] - b[c]);
+            DVector::from_column_slice((m * d).as_slice())
+        })
+    };
+    Ok(v3(se(
+        &jacobian(theta_a, &out).ok_or_else(degenerate)?,
+        cov_a,
+    )))
+}
+
+/// Fits one group (see the module docs). Needs records that excite every axis of both sensors (the standard
+/// design does) and finite values.
+pub fn fit_rate_table_group(
+    records: &[RateRecord],
+    opts: &RateTableOptions,
+) -> Result<RateTableFit, CalibError> {
+    check_records(records)?;
     let (
         ForwardFit {
             theta: theta_g,
@@ -388,48 +443,14 @@ pub fn fit_rate_table_group(
     let fa = |t: &DVector<f64>| {
         accel_inverse(t).map(|(m, _)| DVector::from_iterator(9, m.transpose().iter().copied()))
     };
-    let degenerate = || CalibError::Degenerate("matrix inversion failed near the estimate");
     let mg_se = se(&jacobian(&theta_g, &fg).ok_or_else(degenerate)?, &cov_g);
     let ma_se = se(&jacobian(&theta_a, &fa).ok_or_else(degenerate)?, &cov_a);
     let omega = records
         .iter()
         .flat_map(|r| r.rate_dps)
         .fold(0.0f64, |m, v| m.max(v.abs()));
-    let rate_out = |input: Vec3| {
-        let raw0: [f64; 4] = core::array::from_fn(|c| {
-            (0..3).map(|k| theta_g[4 * c + k] * input[k]).sum::<f64>() + theta_g[4 * c + 3]
-        });
-        move |t: &DVector<f64>| {
-            gyro_inverse(t, &w).map(|(m, b)| {
-                let d = nalgebra::Vector4::from_fn(|c, _| raw0[c] - b[c]);
-                DVector::from_column_slice((m * d).as_slice())
-            })
-        }
-    };
-    let accel_out = |input: Vec3| {
-        let raw0: Vec3 = core::array::from_fn(|c| {
-            (0..3).map(|k| theta_a[4 * c + k] * input[k]).sum::<f64>() + theta_a[4 * c + 3]
-        });
-        move |t: &DVector<f64>| {
-            accel_inverse(t).map(|(m, b)| {
-                let d = Vector3::from_fn(|c, _| raw0[c] - b[c]);
-                DVector::from_column_slice((m * d).as_slice())
-            })
-        }
-    };
-    let v3 = |v: Vec<f64>| -> Vec3 { [v[0], v[1], v[2]] };
-    let rate_se = |input: Vec3| -> Result<Vec3, CalibError> {
-        Ok(v3(se(
-            &jacobian(&theta_g, &rate_out(input)).ok_or_else(degenerate)?,
-            &cov_g,
-        )))
-    };
-    let accel_se = |input: Vec3| -> Result<Vec3, CalibError> {
-        Ok(v3(se(
-            &jacobian(&theta_a, &accel_out(input)).ok_or_else(degenerate)?,
-            &cov_a,
-        )))
-    };
+    let rate_at = |input: Vec3| rate_se(&theta_g, &cov_g, &w, input);
+    let accel_at = |input: Vec3| accel_se(&theta_a, &cov_a, input);
     let unit = |k: usize| -> Vec3 { core::array::from_fn(|i| f64::from(u8::from(i == k))) };
     let sd = |c: &DMatrix<f64>, i: usize| c[(i, i)].max(0.0).sqrt();
     Ok(RateTableFit {
@@ -455,13 +476,13 @@ pub fn fit_rate_table_group(
         accel_bias_counts: ba,
         accel_bias_se_counts: core::array::from_fn(|c| sd(&cov_a, 4 * c + 3)),
         accel_residual_rms_counts,
-        rate_se_dps_at_zero: rate_se([0.0; 3])?,
+        rate_se_dps_at_zero: rate_at([0.0; 3])?,
         rate_se_dps_at_omega: [
-            rate_se(unit(0).map(|v| v * omega))?,
-            rate_se(unit(1).map(|v| v * omega))?,
-            rate_se(unit(2).map(|v| v * omega))?,
+            rate_at(unit(0).map(|v| v * omega))?,
+            rate_at(unit(1).map(|v| v * omega))?,
+            rate_at(unit(2).map(|v| v * omega))?,
         ],
-        accel_se_g_at_1g: [accel_se(unit(0))?, accel_se(unit(1))?, accel_se(unit(2))?],
+        accel_se_g_at_1g: [accel_at(unit(0))?, accel_at(unit(1))?, accel_at(unit(2))?],
     })
 }
 

@@ -18,6 +18,8 @@ use std::path::Path;
 
 mod parse;
 use parse::*;
+#[doc(hidden)]
+pub use parse::{PieceParser, general_cell, parse_chunk};
 
 pub use crate::recording::{
     AXIS_NAMES, AxisMean, Column, Recording, SensorKind, column_name, parse_column_name,
@@ -188,44 +190,34 @@ impl Recording {
         size_hint: u64,
         name: &str,
     ) -> Result<(Recording, Vec<String>), CsvError> {
-        Self::parse_blocks(src, size_hint, name, BLOCK_BYTES)
+        Self::parse_blocks(src, size_hint, name, BLOCK_BYTES, parse_chunk)
     }
 
-    /// [`Self::parse_from`] with blocks of `block` bytes.
+    /// [`Self::parse_from`] with another parser of each piece of a block: for the like-for-like comparison with
+    /// the `csv` crate (`examples/csv_crate_blocks.rs`), where everything but the pieces' parsing is the same.
+    #[doc(hidden)]
+    pub fn parse_from_with(
+        src: impl std::io::Read + Send,
+        size_hint: u64,
+        name: &str,
+        piece: PieceParser,
+    ) -> Result<(Recording, Vec<String>), CsvError> {
+        Self::parse_blocks(src, size_hint, name, BLOCK_BYTES, piece)
+    }
+
+    /// [`Self::parse_from`] with blocks of `block` bytes. Phases: the header found and read, the blocks of the
+    /// body parsed into the columns, the recording checked and put together.
     fn parse_blocks(
         mut src: impl std::io::Read + Send,
         size_hint: u64,
         name: &str,
         block: usize,
+        piece: PieceParser,
     ) -> Result<(Recording, Vec<String>), CsvError> {
         let block = block.max(1);
-        let io = |source| CsvError::Io {
-            path: name.to_string(),
-            source,
-        };
         let mut cur = Vec::new();
-        let mut eof = fill(&mut src, &mut cur, block.max(UTF8_BOM.len())).map_err(io)?;
-        // A byte-order mark (spreadsheet programs write one) is not part of the first column's name.
-        if cur.starts_with(&UTF8_BOM) {
-            cur.drain(..UTF8_BOM.len());
-        }
-        // The header: the first line that is not blank, complete in the buffer.
-        let (header_line, header_end) = loop {
-            match find_header(&cur, eof) {
-                Some(found) => break found,
-                None if !eof => {
-                    let want = 2 * cur.len();
-                    eof = fill(&mut src, &mut cur, want).map_err(io)?;
-                }
-                None => {
-                    return Err(CsvError::Header {
-                        line: 1,
-                        what: "the file is empty".into(),
-                    });
-                }
-            }
-        };
-        let (line_start, line_end) = header_end;
+        let (header_line, (line_start, line_end), eof) =
+            read_header(&mut src, &mut cur, block, name)?;
         let header =
             std::str::from_utf8(cur.get(line_start..line_end).unwrap_or(&[])).map_err(|_| {
                 CsvError::Header {
@@ -233,194 +225,33 @@ impl Recording {
                     what: "not UTF-8 text".into(),
                 }
             })?;
-        let names: Vec<String> = header.split(',').map(|n| n.trim().to_string()).collect();
-        let names: Vec<&str> = names.iter().map(String::as_str).collect();
         let mut warnings = Vec::new();
-        let mut roles = Vec::with_capacity(names.len());
-        let mut columns: Vec<Column> = Vec::new();
-        let (mut has_t, mut has_temp) = (false, false);
-        for name in &names {
-            let role = match *name {
-                "t" if !has_t => {
-                    has_t = true;
-                    Role::Time
-                }
-                "temp_c" if !has_temp => {
-                    has_temp = true;
-                    Role::Temp
-                }
-                "t" | "temp_c" => {
-                    return Err(CsvError::Header {
-                        line: header_line,
-                        what: format!("column '{name}' appears twice"),
-                    });
-                }
-                _ => match parse_column_name(name) {
-                    Some((kind, group, axis)) => {
-                        if columns
-                            .iter()
-                            .any(|c| c.kind == kind && c.group == group && c.axis == axis)
-                        {
-                            return Err(CsvError::Header {
-                                line: header_line,
-                                what: format!("column '{name}' appears twice"),
-                            });
-                        }
-                        columns.push(Column {
-                            group,
-                            kind,
-                            axis,
-                            data: Vec::new(),
-                        });
-                        Role::Sensor(columns.len() - 1)
-                    }
-                    None => {
-                        warnings.push(format!(
-                            "column '{name}' is not t, temp_c or gSS[xyz]/aSS[xyz]: ignored"
-                        ));
-                        Role::Ignored
-                    }
-                },
-            };
-            roles.push(role);
-        }
-        if !has_t {
-            // A file with another separator has one long "name".
-            let other = [';', '\t', ' ', '|']
-                .into_iter()
-                .find(|&c| names.len() == 1 && header.contains(c));
-            return Err(CsvError::Header {
-                line: header_line,
-                what: match other {
-                    Some(c) => format!(
-                        "no 't' column (time in seconds): the columns must be separated by commas, found {c:?}"
-                    ),
-                    None => "no 't' column (time in seconds)".into(),
-                },
-            });
-        }
-        if columns.is_empty() {
-            return Err(CsvError::Header {
-                line: header_line,
-                what: "no sensor columns (gSSx … aSSz)".into(),
-            });
-        }
-        let target_of: Vec<Option<usize>> = roles
-            .iter()
-            .map(|r| match r {
-                Role::Time => Some(0),
-                Role::Temp => Some(1),
-                Role::Sensor(k) => Some(1 + usize::from(has_temp) + k),
-                Role::Ignored => None,
-            })
-            .collect();
+        let head = Header::parse(header, header_line, &mut warnings)?;
+        let names: Vec<&str> = head.names.iter().map(String::as_str).collect();
         let layout = Layout {
-            target_of: &target_of,
+            target_of: &head.target_of,
             names: &names,
+            piece,
         };
-        let n_targets = 1 + usize::from(has_temp) + columns.len();
-        let mut targets: Vec<Vec<f64>> = vec![Vec::new(); n_targets];
         // The header line ends at `line_end` (before any "\r\n"); the body starts after its '\n'.
-        let mut body_start = cur
+        let body_start = cur
             .get(line_end..)
             .and_then(|r| r.iter().position(|&c| c == b'\n'))
             .map_or(cur.len(), |i| line_end + i + 1);
-        let mut line_no = header_line;
-        let mut next = Vec::new();
-        let mut first = true;
-        // The row after every empty line of the body (for the line of a row).
-        let mut blanks = Vec::new();
-        // Rows parsed so far (the columns may be longer: room reserved ahead).
-        let mut filled = 0;
-        loop {
-            let body = cur.get(body_start..).unwrap_or(&[]);
-            // Whole lines only, unless this is the end of the text.
-            let end = if eof {
-                body.len()
-            } else {
-                match memchr::memrchr(b'\n', body) {
-                    Some(i) => i + 1,
-                    None => {
-                        // Not one whole line in the buffer: read more.
-                        let want = 2 * cur.len().max(block);
-                        eof = fill(&mut src, &mut cur, want).map_err(io)?;
-                        continue;
-                    }
-                }
-            };
-            let (region, rest) = body.split_at(end);
-            if first {
-                // Room for all rows, estimated from the bytes per line of the first MiB.
-                first = false;
-                let sample = region.get(..region.len().min(1 << 20)).unwrap_or(region);
-                let lines = count_newlines(sample).max(1);
-                let rows =
-                    (size_hint as f64 * lines as f64 / sample.len().max(1) as f64 * 1.01) as usize;
-                // Zeroed allocations are fresh pages, faulted in (in parallel) by the parsers' first writes.
-                for t in &mut targets {
-                    *t = vec![0.0; rows];
-                }
-            }
-            next.clear();
-            next.extend_from_slice(rest);
-            let (parsed, read) = rayon::join(
-                || parse_region(region, line_no, &layout, &mut targets, filled, &mut blanks),
-                || {
-                    if eof {
-                        Ok(true)
-                    } else {
-                        fill(&mut src, &mut next, block)
-                    }
-                },
-            );
-            let (last_line, rows) = parsed?;
-            line_no = last_line;
-            filled += rows;
-            if eof {
-                break;
-            }
-            eof = read.map_err(io)?;
-            std::mem::swap(&mut cur, &mut next);
-            body_start = 0;
-        }
-        for t in &mut targets {
-            t.truncate(filled);
-        }
-        if filled == 0 {
-            return Err(CsvError::Header {
-                line: header_line,
-                what: "no samples: no data row after the header".into(),
-            });
-        }
-        // File line of row r: the header, the rows and empty lines before it.
-        let line_of = |r: usize| header_line + 1 + r + blanks.partition_point(|&b| b <= r);
-        let column_of = |n: &str| names.iter().position(|x| *x == n).map_or(0, |i| i + 1);
-        let time = targets.first().map_or(&[][..], Vec::as_slice);
-        check_time(time, &line_of, column_of("t"), &mut warnings)?;
-        if let Some(temp) = targets.get(1).filter(|_| has_temp) {
-            let missing = temp.iter().filter(|x| x.is_nan()).count();
-            if let Some(first) = temp.iter().position(|x| x.is_nan()) {
-                warnings.push(format!(
-                    "temp_c: {missing} of {} samples have no temperature (NaN), the first on line {}",
-                    temp.len(),
-                    line_of(first)
-                ));
-            }
-        }
-        let mut targets = targets.into_iter();
-        let mut rec = Recording {
-            t_s: targets.next().unwrap_or_default(),
-            temp_c: if has_temp { targets.next() } else { None },
-            columns: Vec::new(),
+        let body = Body {
+            src,
+            cur,
+            eof,
+            start: body_start,
+            line_no: header_line,
+            size_hint,
+            block,
+            name,
         };
-        for (c, data) in columns.iter_mut().zip(targets) {
-            c.data = data;
-        }
-        columns.sort_by_key(|c| (c.kind, c.group, c.axis));
-        rec.columns = columns;
-        Ok((rec, warnings))
+        let n_targets = 1 + usize::from(head.has_temp) + head.columns.len();
+        let (targets, blanks) = body.parse(&layout, n_targets)?;
+        head.recording(targets, &blanks, header_line, warnings)
     }
-
     /// Writes the canonical CSV (gyro columns of a group, then its accel columns; groups in order). Time in Rust's
     /// shortest round-trip form; sensor values and temperature with [`VALUE_DECIMALS`] decimals.
     pub fn write(&self, path: &Path) -> std::io::Result<()> {
@@ -451,6 +282,278 @@ impl Recording {
             writeln!(out, "{row}")?;
         }
         out.flush()
+    }
+}
+
+/// Reads into `cur` (from the start of `src`) until it holds the header, the first line that is not blank, whole;
+/// a byte-order mark is dropped. Returns the header's line, its byte range in `cur` and whether `src` has ended.
+fn read_header(
+    src: &mut impl std::io::Read,
+    cur: &mut Vec<u8>,
+    block: usize,
+    name: &str,
+) -> Result<(usize, (usize, usize), bool), CsvError> {
+    let io = |source| CsvError::Io {
+        path: name.to_string(),
+        source,
+    };
+    let mut eof = fill(src, cur, block.max(UTF8_BOM.len())).map_err(io)?;
+    // A byte-order mark (spreadsheet programs write one) is not part of the first column's name.
+    if cur.starts_with(&UTF8_BOM) {
+        cur.drain(..UTF8_BOM.len());
+    }
+    loop {
+        match find_header(cur, eof) {
+            Some((line, range)) => return Ok((line, range, eof)),
+            None if !eof => {
+                let want = 2 * cur.len();
+                eof = fill(src, cur, want).map_err(io)?;
+            }
+            None => {
+                return Err(CsvError::Header {
+                    line: 1,
+                    what: "the file is empty".into(),
+                });
+            }
+        }
+    }
+}
+
+/// The header's columns: their names, where each one's values go, the sensor columns (without data yet).
+struct Header {
+    names: Vec<String>,
+    /// Per column of the file: its target (0 the time, 1 the temperature if any, then the sensor columns).
+    target_of: Vec<Option<usize>>,
+    columns: Vec<Column>,
+    has_temp: bool,
+}
+
+impl Header {
+    /// Parses the header line `header` (file line `line`); pushes a warning for every column ignored.
+    fn parse(header: &str, line: usize, warnings: &mut Vec<String>) -> Result<Header, CsvError> {
+        let error = |what: String| CsvError::Header { line, what };
+        let names: Vec<String> = header.split(',').map(|n| n.trim().to_string()).collect();
+        let mut roles = Vec::with_capacity(names.len());
+        let mut columns: Vec<Column> = Vec::new();
+        let (mut has_t, mut has_temp) = (false, false);
+        for name in &names {
+            let role = match name.as_str() {
+                "t" if !has_t => {
+                    has_t = true;
+                    Role::Time
+                }
+                "temp_c" if !has_temp => {
+                    has_temp = true;
+                    Role::Temp
+                }
+                "t" | "temp_c" => return Err(error(format!("column '{name}' appears twice"))),
+                _ => match parse_column_name(name) {
+                    Some((kind, group, axis)) => {
+                        if columns
+                            .iter()
+                            .any(|c| c.kind == kind && c.group == group && c.axis == axis)
+                        {
+                            return Err(error(format!("column '{name}' appears twice")));
+                        }
+                        columns.push(Column {
+                            group,
+                            kind,
+                            axis,
+                            data: Vec::new(),
+                        });
+                        Role::Sensor(columns.len() - 1)
+                    }
+                    None => {
+                        warnings.push(format!(
+                            "column '{name}' is not t, temp_c or gSS[xyz]/aSS[xyz]: ignored"
+                        ));
+                        Role::Ignored
+                    }
+                },
+            };
+            roles.push(role);
+        }
+        if !has_t {
+            // A file with another separator has one long "name".
+            let other = [';', '\t', ' ', '|']
+                .into_iter()
+                .find(|&c| names.len() == 1 && header.contains(c));
+            return Err(error(match other {
+                Some(c) => format!(
+                    "no 't' column (time in seconds): the columns must be separated by commas, found {c:?}"
+                ),
+                None => "no 't' column (time in seconds)".into(),
+            }));
+        }
+        if columns.is_empty() {
+            return Err(error("no sensor columns (gSSx … aSSz)".into()));
+        }
+        let target_of = roles
+            .iter()
+            .map(|r| match r {
+                Role::Time => Some(0),
+                Role::Temp => Some(1),
+                Role::Sensor(k) => Some(1 + usize::from(has_temp) + k),
+                Role::Ignored => None,
+            })
+            .collect();
+        Ok(Header {
+            names,
+            target_of,
+            columns,
+            has_temp,
+        })
+    }
+
+    /// The recording from the parsed `targets` (one per target, all rows; `blanks` the rows after empty lines, the
+    /// header on file line `header_line`): checks the times and counts missing temperatures (into `warnings`).
+    fn recording(
+        mut self,
+        targets: Vec<Vec<f64>>,
+        blanks: &[usize],
+        header_line: usize,
+        mut warnings: Vec<String>,
+    ) -> Result<(Recording, Vec<String>), CsvError> {
+        if targets.first().is_none_or(Vec::is_empty) {
+            return Err(CsvError::Header {
+                line: header_line,
+                what: "no samples: no data row after the header".into(),
+            });
+        }
+        // File line of row r: the header, the rows and empty lines before it.
+        let line_of = |r: usize| header_line + 1 + r + blanks.partition_point(|&b| b <= r);
+        let column_of = |n: &str| self.names.iter().position(|x| *x == n).map_or(0, |i| i + 1);
+        let time = targets.first().map_or(&[][..], Vec::as_slice);
+        check_time(time, &line_of, column_of("t"), &mut warnings)?;
+        if let Some(temp) = targets.get(1).filter(|_| self.has_temp) {
+            let missing = temp.iter().filter(|x| x.is_nan()).count();
+            if let Some(first) = temp.iter().position(|x| x.is_nan()) {
+                warnings.push(format!(
+                    "temp_c: {missing} of {} samples have no temperature (NaN), the first on line {}",
+                    temp.len(),
+                    line_of(first)
+                ));
+            }
+        }
+        let mut targets = targets.into_iter();
+        let mut rec = Recording {
+            t_s: targets.next().unwrap_or_default(),
+            temp_c: if self.has_temp { targets.next() } else { None },
+            columns: Vec::new(),
+        };
+        for (c, data) in self.columns.iter_mut().zip(targets) {
+            c.data = data;
+        }
+        self.columns.sort_by_key(|c| (c.kind, c.group, c.axis));
+        rec.columns = self.columns;
+        Ok((rec, warnings))
+    }
+}
+
+/// The body of a CSV being read: `cur` holds the text read so far, the body's unparsed part from `start` on.
+struct Body<'n, R> {
+    src: R,
+    cur: Vec<u8>,
+    /// Whether `src` has ended.
+    eof: bool,
+    start: usize,
+    /// File line of the last line before `start`.
+    line_no: usize,
+    /// Bytes expected in all, for reserving the columns.
+    size_hint: u64,
+    block: usize,
+    /// For I/O errors.
+    name: &'n str,
+}
+
+impl<R: std::io::Read + Send> Body<'_, R> {
+    /// Parses the rest of the text, block by block (each one's pieces in parallel while the next block is read),
+    /// into `n_targets` columns; returns them, cut to the rows parsed, and the row after every empty line.
+    fn parse(
+        mut self,
+        layout: &Layout,
+        n_targets: usize,
+    ) -> Result<(Vec<Vec<f64>>, Vec<usize>), CsvError> {
+        let io = |source| CsvError::Io {
+            path: self.name.to_string(),
+            source,
+        };
+        let mut targets: Vec<Vec<f64>> = vec![Vec::new(); n_targets];
+        let mut next = Vec::new();
+        let mut first = true;
+        // The row after every empty line of the body (for the line of a row).
+        let mut blanks = Vec::new();
+        // Rows parsed so far (the columns may be longer: room reserved ahead).
+        let mut filled = 0;
+        loop {
+            let body = self.cur.get(self.start..).unwrap_or(&[]);
+            // Whole lines only, unless this is the end of the text.
+            let end = if self.eof {
+                body.len()
+            } else {
+                match memchr::memrchr(b'\n', body) {
+                    Some(i) => i + 1,
+                    None => {
+                        // Not one whole line in the buffer: read more.
+                        let want = 2 * self.cur.len().max(self.block);
+                        self.eof = fill(&mut self.src, &mut self.cur, want).map_err(io)?;
+                        continue;
+                    }
+                }
+            };
+            let (region, rest) = body.split_at(end);
+            if first {
+                first = false;
+                reserve_rows(&mut targets, region, self.size_hint);
+            }
+            next.clear();
+            next.extend_from_slice(rest);
+            let (eof, src, block) = (self.eof, &mut self.src, self.block);
+            let (parsed, read) = rayon::join(
+                || {
+                    parse_region(
+                        region,
+                        self.line_no,
+                        layout,
+                        &mut targets,
+                        filled,
+                        &mut blanks,
+                    )
+                },
+                || {
+                    if eof {
+                        Ok(true)
+                    } else {
+                        fill(src, &mut next, block)
+                    }
+                },
+            );
+            let (last_line, rows) = parsed?;
+            self.line_no = last_line;
+            filled += rows;
+            if self.eof {
+                break;
+            }
+            self.eof = read.map_err(io)?;
+            std::mem::swap(&mut self.cur, &mut next);
+            self.start = 0;
+        }
+        for t in &mut targets {
+            t.truncate(filled);
+        }
+        Ok((targets, blanks))
+    }
+}
+
+/// Room in every target for all rows, estimated from the bytes per line of the first MiB of `region` (the first
+/// block's whole lines) and the `size_hint`. Zeroed allocations are fresh pages, faulted in (in parallel) by the
+/// parsers' first writes.
+fn reserve_rows(targets: &mut [Vec<f64>], region: &[u8], size_hint: u64) {
+    let sample = region.get(..region.len().min(1 << 20)).unwrap_or(region);
+    let lines = count_newlines(sample).max(1);
+    let rows = (size_hint as f64 * lines as f64 / sample.len().max(1) as f64 * 1.01) as usize;
+    for t in targets {
+        *t = vec![0.0; rows];
     }
 }
 

@@ -57,6 +57,163 @@ struct Sensor {
     outlier: Option<(f64, u64, f64)>,
 }
 
+/// The shared processes and which (mode or drift, axis) each one is: per (mode, axis) a unit white and a unit
+/// flicker (where the mode has them), then per (drift, axis) the drift, in that order (their seeds and indices).
+struct SharedSet {
+    procs: Vec<SharedProc>,
+    /// (mode, axis, white index, flicker index)
+    modes: Vec<(usize, Axis, Option<usize>, Option<usize>)>,
+    /// (drift, axis, index)
+    drifts: Vec<(usize, Axis, usize)>,
+}
+
+impl SharedSet {
+    fn new(cfg: &SimConfig, sampling: &Sampling) -> Result<Self, SimError> {
+        let mut procs: Vec<SharedProc> = Vec::new();
+        let mut add_shared = |p: NoiseParams, id: u64| -> Result<usize, SimError> {
+            procs.push(SharedProc {
+                model: NoiseModel::new(&p, sampling)?,
+                noise: SensorNoise::new(&p, sampling, subseed(cfg.seed, id))?,
+                buf: Vec::new(),
+            });
+            Ok(procs.len() - 1)
+        };
+        let mut modes = Vec::new();
+        for (k, m) in cfg.common.iter().enumerate() {
+            for &a in &m.axes {
+                let base = 10_000 + 64 * k as u64 + 2 * a.index() as u64;
+                let w = if m.rho_white > 0.0 {
+                    Some(add_shared(NoiseParams::white(1.0), base)?)
+                } else {
+                    None
+                };
+                let unit_b = NoiseParams {
+                    flicker: 1.0,
+                    ..NoiseParams::default()
+                };
+                let f = if m.rho_flicker > 0.0 {
+                    Some(add_shared(unit_b, base + 1)?)
+                } else {
+                    None
+                };
+                modes.push((k, a, w, f));
+            }
+        }
+        let mut drifts = Vec::new();
+        for (k, d) in cfg.drift.iter().enumerate() {
+            for &a in &d.axes {
+                drifts.push((
+                    k,
+                    a,
+                    add_shared(d.kind.params(), 20_000 + 8 * k as u64 + a.index() as u64)?,
+                ));
+            }
+        }
+        Ok(Self {
+            procs,
+            modes,
+            drifts,
+        })
+    }
+
+    /// The shared processes in sensor (group `g`, channel `ch`, parameters `p`) with their coefficients, and the
+    /// fractions of its white and flicker variance they take.
+    fn shares_of(
+        &self,
+        cfg: &SimConfig,
+        g: usize,
+        ch: Channel,
+        p: &NoiseParams,
+    ) -> (Vec<(usize, f64)>, f64, f64) {
+        let mut shares = Vec::new();
+        let (mut rw, mut rf) = (0.0, 0.0);
+        for &(k, a, w, f) in &self.modes {
+            let m = &cfg.common[k];
+            if a != ch.axis() || !covers(&m.groups, g) {
+                continue;
+            }
+            if let Some(w) = w {
+                shares.push((w, p.white * m.rho_white.sqrt()));
+                rw += m.rho_white;
+            }
+            if let Some(f) = f {
+                shares.push((f, p.flicker * m.rho_flicker.sqrt()));
+                rf += m.rho_flicker;
+            }
+        }
+        for &(k, a, i) in &self.drifts {
+            if a == ch.axis() && covers(&cfg.drift[k].groups, g) {
+                shares.push((i, 1.0));
+            }
+        }
+        (shares, rw, rf)
+    }
+}
+
+impl Sensor {
+    /// The sensor of group `g`, channel `ch`: `z` its part-spread draws, `tz` its thermal draw.
+    fn new(
+        cfg: &SimConfig,
+        sampling: &Sampling,
+        shared: &SharedSet,
+        (g, ch): (usize, Channel),
+        z: [f64; 4],
+        tz: f64,
+    ) -> Result<Self, SimError> {
+        let c = ch.index();
+        let dt = sampling.dt_s;
+        let s = &cfg.spread;
+        let mut p = match cfg
+            .overrides
+            .iter()
+            .rev()
+            .find(|o| o.group == g && o.channel == ch)
+        {
+            Some(o) => o.params,
+            None => {
+                let b = cfg.sensor[c];
+                NoiseParams {
+                    white: b.white * (s.level_ln * z[0] + s.white_ln * z[1]).exp(),
+                    flicker: b.flicker * (s.level_ln * z[0] + s.flicker_ln * z[2]).exp(),
+                    rrw: b.rrw * (s.level_ln * z[0] + s.rrw_ln * z[3]).exp(),
+                    ..b
+                }
+            }
+        };
+        let mut outlier = None;
+        for o in cfg
+            .outliers
+            .iter()
+            .filter(|o| o.group == g && o.channel == ch)
+        {
+            p = p.scaled(o.noise_factor);
+            let at = (o.step_at_s.max(0.0) / dt).ceil().min(u64::MAX as f64) as u64;
+            outlier = Some((o.step, at, o.drift_per_h * dt / 3600.0));
+        }
+        let (shares, rw, rf) = shared.shares_of(cfg, g, ch, &p);
+        let indep_p = NoiseParams {
+            white: p.white * (1.0 - rw).max(0.0).sqrt(),
+            flicker: p.flicker * (1.0 - rf).max(0.0).sqrt(),
+            ..p
+        };
+        let thermal_coef = cfg.thermal.map_or(0.0, |t| {
+            t.coef[ch.axis().index()] + t.coef_sd[ch.axis().index()] * tz
+        });
+        Ok(Sensor {
+            params: p,
+            indep: NoiseModel::new(&indep_p, sampling)?,
+            noise: SensorNoise::new(
+                &indep_p,
+                sampling,
+                subseed(cfg.seed, 100 + (g * CHANNELS + c) as u64),
+            )?,
+            shares,
+            thermal_coef,
+            outlier,
+        })
+    }
+}
+
 /// A chunk of consecutive samples: time, temperature, per-channel readings, ADC codes and physical outputs.
 #[derive(Clone, Debug, Default)]
 pub struct Chunk {
@@ -155,48 +312,7 @@ impl Simulator {
     pub fn new(cfg: SimConfig) -> Result<Self, SimError> {
         cfg.validate()?;
         let sampling = cfg.sampling()?;
-        let dt = sampling.dt_s;
-        let mut shared: Vec<SharedProc> = Vec::new();
-        let mut add_shared = |p: NoiseParams, id: u64| -> Result<usize, SimError> {
-            shared.push(SharedProc {
-                model: NoiseModel::new(&p, &sampling)?,
-                noise: SensorNoise::new(&p, &sampling, subseed(cfg.seed, id))?,
-                buf: Vec::new(),
-            });
-            Ok(shared.len() - 1)
-        };
-        // Shared processes: per (mode, axis) a unit white and a unit flicker; per (drift, axis) the drift.
-        let mut mode_idx = Vec::new(); // (mode, axis, white idx, flicker idx)
-        for (k, m) in cfg.common.iter().enumerate() {
-            for &a in &m.axes {
-                let base = 10_000 + 64 * k as u64 + 2 * a.index() as u64;
-                let w = if m.rho_white > 0.0 {
-                    Some(add_shared(NoiseParams::white(1.0), base)?)
-                } else {
-                    None
-                };
-                let unit_b = NoiseParams {
-                    flicker: 1.0,
-                    ..NoiseParams::default()
-                };
-                let f = if m.rho_flicker > 0.0 {
-                    Some(add_shared(unit_b, base + 1)?)
-                } else {
-                    None
-                };
-                mode_idx.push((k, a, w, f));
-            }
-        }
-        let mut drift_idx = Vec::new(); // (drift, axis, idx)
-        for (k, d) in cfg.drift.iter().enumerate() {
-            for &a in &d.axes {
-                drift_idx.push((
-                    k,
-                    a,
-                    add_shared(d.kind.params(), 20_000 + 8 * k as u64 + a.index() as u64)?,
-                ));
-            }
-        }
+        let shared = SharedSet::new(&cfg, &sampling)?;
         // The board's part spread, thermal coefficients and calibration follow `board_seed` when set, so that one
         // simulated board can be recorded many times with fresh noise (rate-table calibration: 18 records of it).
         let board_seed = cfg.board_seed.unwrap_or(cfg.seed);
@@ -206,80 +322,12 @@ impl Simulator {
         let mut sensors = Vec::with_capacity(GROUPS * CHANNELS);
         for g in 0..GROUPS {
             for ch in Channel::ALL {
-                let c = ch.index();
                 let z: [f64; 4] = core::array::from_fn(|_| normal(&mut spread_rng));
                 let tz = normal(&mut thermal_rng);
-                let s = &cfg.spread;
-                let mut p = match cfg
-                    .overrides
-                    .iter()
-                    .rev()
-                    .find(|o| o.group == g && o.channel == ch)
-                {
-                    Some(o) => o.params,
-                    None => {
-                        let b = cfg.sensor[c];
-                        NoiseParams {
-                            white: b.white * (s.level_ln * z[0] + s.white_ln * z[1]).exp(),
-                            flicker: b.flicker * (s.level_ln * z[0] + s.flicker_ln * z[2]).exp(),
-                            rrw: b.rrw * (s.level_ln * z[0] + s.rrw_ln * z[3]).exp(),
-                            ..b
-                        }
-                    }
-                };
-                let mut outlier = None;
-                for o in cfg
-                    .outliers
-                    .iter()
-                    .filter(|o| o.group == g && o.channel == ch)
-                {
-                    p = p.scaled(o.noise_factor);
-                    let at = (o.step_at_s.max(0.0) / dt).ceil().min(u64::MAX as f64) as u64;
-                    outlier = Some((o.step, at, o.drift_per_h * dt / 3600.0));
-                }
-                let mut shares = Vec::new();
-                let (mut rw, mut rf) = (0.0, 0.0);
-                for &(k, a, w, f) in &mode_idx {
-                    let m = &cfg.common[k];
-                    if a != ch.axis() || !covers(&m.groups, g) {
-                        continue;
-                    }
-                    if let Some(w) = w {
-                        shares.push((w, p.white * m.rho_white.sqrt()));
-                        rw += m.rho_white;
-                    }
-                    if let Some(f) = f {
-                        shares.push((f, p.flicker * m.rho_flicker.sqrt()));
-                        rf += m.rho_flicker;
-                    }
-                }
-                for &(k, a, i) in &drift_idx {
-                    if a == ch.axis() && covers(&cfg.drift[k].groups, g) {
-                        shares.push((i, 1.0));
-                    }
-                }
-                let indep_p = NoiseParams {
-                    white: p.white * (1.0 - rw).max(0.0).sqrt(),
-                    flicker: p.flicker * (1.0 - rf).max(0.0).sqrt(),
-                    ..p
-                };
-                let thermal_coef = cfg.thermal.map_or(0.0, |t| {
-                    t.coef[ch.axis().index()] + t.coef_sd[ch.axis().index()] * tz
-                });
-                sensors.push(Sensor {
-                    params: p,
-                    indep: NoiseModel::new(&indep_p, &sampling)?,
-                    noise: SensorNoise::new(
-                        &indep_p,
-                        &sampling,
-                        subseed(cfg.seed, 100 + (g * CHANNELS + c) as u64),
-                    )?,
-                    shares,
-                    thermal_coef,
-                    outlier,
-                });
+                sensors.push(Sensor::new(&cfg, &sampling, &shared, (g, ch), z, tz)?);
             }
         }
+        let shared = shared.procs;
         let mut cal = [TrueGroupCal::nominal(); GROUPS];
         for c in &mut cal {
             *c = cfg.cal.sample(&mut cal_rng)?;

@@ -1028,3 +1028,80 @@ fn csv_parses_with_the_project_reader() {
         println!("parsed ok, thermal={thermal}");
     }
 }
+
+/// The simulator's output for a configuration with every per-sensor ingredient (part spread, overrides, outliers,
+/// common modes over all and over some groups, a drift, thermal terms, calibration spread) is pinned by a hash of
+/// its bits: a restructuring of [`Simulator::new`] must leave it unchanged (issue 29).
+#[test]
+fn simulator_output_is_pinned() {
+    let mut cfg = seed_config(5).unwrap();
+    cfg.samples = 1500;
+    cfg.cal = CalSpread::typical();
+    cfg.common.push(CommonMode::all(&Axis::ALL, 0.1, 0.2));
+    let mut block = CommonMode::all(&[Axis::GyroX, Axis::AccelZ], 0.3, 0.0);
+    block.groups = Some(vec![0, 3, 7]);
+    cfg.common.push(block);
+    cfg.drift.push(CommonDrift {
+        groups: Some(vec![2, 5]),
+        axes: vec![Axis::GyroY, Axis::AccelX],
+        kind: DriftKind::RandomWalk { k: 1e-3 },
+    });
+    cfg.thermal = Some(Thermal {
+        mean_c: 25.0,
+        amplitude_c: 2.0,
+        period_s: 60.0,
+        phase_rad: 0.3,
+        drift_c_per_h: 0.5,
+        coef: [0.01, 0.02, 0.0, 1e-3, 0.0, 2e-3],
+        coef_sd: [0.002; 6],
+        ref_c: None,
+        hold_after_s: None,
+    });
+    cfg.spread = PartSpread {
+        level_ln: 0.2,
+        white_ln: 0.1,
+        flicker_ln: 0.15,
+        rrw_ln: 0.1,
+    };
+    cfg.overrides.push(SensorOverride {
+        group: 4,
+        channel: Channel::GyroAX,
+        params: NoiseParams::white(0.05),
+    });
+    cfg.outliers.push(Outlier {
+        group: 9,
+        channel: Channel::AccelY,
+        noise_factor: 3.0,
+        step: 0.01,
+        step_at_s: 20.0,
+        drift_per_h: 3.6,
+    });
+    let mut sim = Simulator::new(cfg).unwrap();
+    let mut chunk = Chunk::default();
+    // FNV-1a over the physical outputs' bits, the ADC codes and the temperatures.
+    let mut hash = 0xcbf2_9ce4_8422_2325u64;
+    let mut eat = |x: u64| {
+        for b in x.to_le_bytes() {
+            hash = (hash ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    while sim.next_chunk(&mut chunk) > 0 {
+        chunk
+            .phys
+            .iter()
+            .flatten()
+            .flatten()
+            .for_each(|v| eat(v.to_bits()));
+        chunk
+            .codes
+            .iter()
+            .flatten()
+            .flatten()
+            .for_each(|&c| eat(u64::from(c)));
+        chunk.temp_c.iter().for_each(|v| eat(v.to_bits()));
+    }
+    assert_eq!(
+        hash, 0x4689_1c6e_4e28_5194,
+        "simulator output hash {hash:#x}"
+    );
+}

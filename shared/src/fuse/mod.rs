@@ -438,7 +438,8 @@ impl<const G: usize> Fusion<G> {
 
     /// One axis: `x` the groups' values, `sorted` the candidates' values and `i32::MAX` for the others,
     /// `candidates` the groups not excluded (bitmask), `fixed` the table's weights in `FusionMode::Fixed`; returns
-    /// (sensors used, fused value, outlier mask, used mask).
+    /// (sensors used, fused value, outlier mask, used mask). Its phases are the helpers below, each inlined into it
+    /// (the flight hot path: the same code as when they were written out here).
     #[allow(clippy::too_many_arguments)]
     fn fuse_axis(
         &mut self,
@@ -464,46 +465,86 @@ impl<const G: usize> Fusion<G> {
         // Candidates sorted, then the padding.
         sort_small(&mut sorted);
         let median = median_sorted(sorted.get(..n).unwrap_or(&[]));
-        let med = i64::from(median);
 
-        // Robust scale: MAD of the candidates.
-        let mut outliers = 0u32;
-        if self.config.robust && n >= 3 {
-            let scale = self
-                .scale
-                .get_mut(a)
-                .map_or(0, |s| s.update(i64::from(mad_sorted(&sorted, n, median))));
-            // |x − med| > k · 1.4826 · scale  ⇔  |x − med| · 2²⁴ > k_q8 · scale · 1.4826_q16; for the limit L ≥ 0 and
-            // integer distances that is |x − med| > ⌊L / 2²⁴⌋. The scale is a MAD: ≥ 0 and < 2³¹ (the clamp only
-            // states it), so L < 2¹⁶ · 2³¹ · 2¹⁷ = 2⁶⁴ fits `u64` for every configuration: the products cannot wrap.
-            let scale = scale.clamp(0, i64::from(i32::MAX)) as u64;
-            let limit_q24 = u64::from(self.config.outlier_sigmas_q8)
-                .wrapping_mul(scale)
-                .wrapping_mul(MAD_TO_SIGMA_Q16);
-            let floor = i64::from(self.config.outlier_floor.get(kind).copied().unwrap_or(0));
-            // ⌊L / 2²⁴⌋ < 2⁴⁰: the cast is exact.
-            let threshold = floor.max((limit_q24 >> 24) as i64);
-            if threshold < 0 {
-                outliers = candidates;
-            } else {
-                // |x − med| > t  ⇔  (x − med + t) ∉ [0, 2t]  ⇔  (x − med + t) as u64 > 2t, for t ≥ 0. Here
-                // 0 ≤ t < 2⁴⁰ and |med|, |x| ≤ 2³¹: none of these sums wraps.
-                let (offset, span) = (
-                    threshold.wrapping_sub(med),
-                    (threshold as u64).wrapping_mul(2),
-                );
-                unroll::each(x, |g, v| {
-                    outliers |= u32::from(i64::from(v).wrapping_add(offset) as u64 > span) << g;
-                });
-                outliers &= candidates;
-            }
-        }
+        let outliers = if self.config.robust && n >= 3 {
+            let scale = self.scale.get_mut(a);
+            outlier_mask(&self.config, scale, x, &sorted, n, median, candidates, kind)
+        } else {
+            0
+        };
         let used = candidates & !outliers;
 
-        // Noise estimates of the sensors used: a difference where the sensor was also used in the previous sample.
-        // Branch-free over all groups (the usual case uses them all).
-        let diffs = state.resid_valid & used;
-        unroll::zip_each(&mut state.est, x, |g, e, &v| {
+        state.add_differences(x, median, used);
+        let weighted_mode = self.config.mode == FusionMode::InverseVariance;
+        if fold {
+            state.fold(self.config.noise_shift);
+        }
+        // Whether every used estimate has settled matters only for weighted means.
+        let all_settled = weighted_mode && used & !state.settled == 0;
+        // Weights, at the end of a block, or every sample until the first weights are in use.
+        if weighted_mode && (fold || !self.weights_ready) && all_settled {
+            state.set_weights(used, candidates);
+            self.weights_ready = true;
+        }
+
+        let (num, den) = mean_sums(state, a, x, used, fixed, all_settled);
+        if den == 0 {
+            return (0, 0, outliers, 0);
+        }
+        (used.count_ones() as u8, div_round(num, den), outliers, used)
+    }
+}
+
+/// The outliers among `candidates` (n ≥ 3 of them, `sorted` with the padding last, `median` theirs): the values
+/// farther from the median than both `outlier_sigmas` robust deviations (the axis's MAD, averaged in `scale`) and
+/// the floor of `kind`. Part of [`Fusion::fuse_axis`].
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn outlier_mask<const G: usize>(
+    config: &FusionConfig,
+    scale: Option<&mut AxisScale>,
+    x: &[i32; G],
+    sorted: &[i32; G],
+    n: usize,
+    median: i32,
+    candidates: u32,
+    kind: usize,
+) -> u32 {
+    let med = i64::from(median);
+    let scale = scale.map_or(0, |s| s.update(i64::from(mad_sorted(sorted, n, median))));
+    // |x − med| > k · 1.4826 · scale  ⇔  |x − med| · 2²⁴ > k_q8 · scale · 1.4826_q16; for the limit L ≥ 0 and
+    // integer distances that is |x − med| > ⌊L / 2²⁴⌋. The scale is a MAD: ≥ 0 and < 2³¹ (the clamp only
+    // states it), so L < 2¹⁶ · 2³¹ · 2¹⁷ = 2⁶⁴ fits `u64` for every configuration: the products cannot wrap.
+    let scale = scale.clamp(0, i64::from(i32::MAX)) as u64;
+    let limit_q24 = u64::from(config.outlier_sigmas_q8)
+        .wrapping_mul(scale)
+        .wrapping_mul(MAD_TO_SIGMA_Q16);
+    let floor = i64::from(config.outlier_floor.get(kind).copied().unwrap_or(0));
+    // ⌊L / 2²⁴⌋ < 2⁴⁰: the cast is exact.
+    let threshold = floor.max((limit_q24 >> 24) as i64);
+    if threshold < 0 {
+        return candidates;
+    }
+    // |x − med| > t  ⇔  (x − med + t) ∉ [0, 2t]  ⇔  (x − med + t) as u64 > 2t, for t ≥ 0. Here
+    // 0 ≤ t < 2⁴⁰ and |med|, |x| ≤ 2³¹: none of these sums wraps.
+    let (offset, span) = (
+        threshold.wrapping_sub(med),
+        (threshold as u64).wrapping_mul(2),
+    );
+    let mut outliers = 0u32;
+    unroll::each(x, |g, v| {
+        outliers |= u32::from(i64::from(v).wrapping_add(offset) as u64 > span) << g;
+    });
+    outliers & candidates
+}
+
+impl<const G: usize> AxisState<G> {
+    /// Noise estimates of the sensors `used`: a difference where the sensor was also used in the previous sample.
+    /// Branch-free over all groups (the usual case uses them all). Part of [`Fusion::fuse_axis`].
+    #[inline(always)]
+    fn add_differences(&mut self, x: &[i32; G], median: i32, used: u32) {
+        let diffs = self.resid_valid & used;
+        unroll::zip_each(&mut self.est, x, |g, e, &v| {
             // = (x − median) clamped to i32
             let resid = v.saturating_sub(median);
             let take = diffs >> g & 1;
@@ -517,60 +558,64 @@ impl<const G: usize> Fusion<G> {
             // Read next sample only if the sensor is used now (`resid_valid` below).
             e.last_resid = resid;
         });
-        state.resid_valid = used;
-        let weighted_mode = self.config.mode == FusionMode::InverseVariance;
-        if fold {
-            state.fold(self.config.noise_shift);
-        }
-        // Whether every used estimate has settled matters only for weighted means.
-        let all_settled = weighted_mode && used & !state.settled == 0;
-        // Weights, at the end of a block, or every sample until the first weights are in use.
-        if weighted_mode && (fold || !self.weights_ready) && all_settled {
-            let var_min = state
-                .est
-                .iter()
-                .enumerate()
-                .filter(|&(g, _)| used >> g & 1 != 0)
-                .fold(u64::MAX, |m, (_, e)| m.min(e.var.max(1)));
-            for (g, (w, e)) in state.weight_q16.iter_mut().zip(&state.est).enumerate() {
-                if candidates >> g & 1 != 0 {
-                    let var = NonZeroU64::new(e.var).unwrap_or(NonZeroU64::MIN);
-                    *w = ((var_min << 16) / var).clamp(1, 1 << 16) as u32;
-                }
-            }
-            self.weights_ready = true;
-        }
-
-        // The mean over the used sensors: the table's fixed weights where they sum to a positive value, else the
-        // running inverse-variance weights once settled, else equal weights.
-        let (mut num, mut den) = fixed
-            .map(|w| fixed_sums(w, a, x, used))
-            .filter(|&(_, den)| den > 0)
-            .unwrap_or((0, 0));
-        if den > 0 {
-            // Fixed weights.
-        } else if all_settled {
-            // Plain arithmetic, so that builds with overflow checks keep checking the bound: every weight is in
-            // [1, 2¹⁶] (set so above, or the initial 2¹⁶), so |w · x| ≤ 2⁴⁷ and the sums of G ≤ 32 terms are < 2⁵³.
-            #[allow(clippy::arithmetic_side_effects)]
-            unroll::zip_each(&mut state.weight_q16, x, |g, &mut w, &v| {
-                // w ≤ 2¹⁶: w · x is an i32 × i32 product.
-                let w = (w & (used >> g & 1).wrapping_neg()) as i32;
-                num += i64::from(w) * i64::from(v);
-                den += i64::from(w);
-            });
-        } else {
-            unroll::each(x, |g, v| {
-                // G ≤ 32 values of `i32`: |num| ≤ 2³⁶, cannot wrap.
-                num = num.wrapping_add(i64::from(v & (used >> g & 1).wrapping_neg() as i32));
-            });
-            den = i64::from(used.count_ones());
-        }
-        if den == 0 {
-            return (0, 0, outliers, 0);
-        }
-        (used.count_ones() as u8, div_round(num, den), outliers, used)
+        self.resid_valid = used;
     }
+
+    /// The inverse-variance weights of the `candidates`, relative to the least variance among the sensors `used`.
+    /// Part of [`Fusion::fuse_axis`].
+    #[inline(always)]
+    fn set_weights(&mut self, used: u32, candidates: u32) {
+        let var_min = self
+            .est
+            .iter()
+            .enumerate()
+            .filter(|&(g, _)| used >> g & 1 != 0)
+            .fold(u64::MAX, |m, (_, e)| m.min(e.var.max(1)));
+        for (g, (w, e)) in self.weight_q16.iter_mut().zip(&self.est).enumerate() {
+            if candidates >> g & 1 != 0 {
+                let var = NonZeroU64::new(e.var).unwrap_or(NonZeroU64::MIN);
+                *w = ((var_min << 16) / var).clamp(1, 1 << 16) as u32;
+            }
+        }
+    }
+}
+
+/// Σ wᵢ·xᵢ and Σ wᵢ of the mean over the sensors `used`: the table's fixed weights where they sum to a positive
+/// value, else the running inverse-variance weights once `all_settled`, else equal weights. Part of
+/// [`Fusion::fuse_axis`].
+#[inline(always)]
+fn mean_sums<const G: usize>(
+    state: &mut AxisState<G>,
+    a: usize,
+    x: &[i32; G],
+    used: u32,
+    fixed: Option<&[[i32; AXES]; G]>,
+    all_settled: bool,
+) -> (i64, i64) {
+    let (mut num, mut den) = fixed
+        .map(|w| fixed_sums(w, a, x, used))
+        .filter(|&(_, den)| den > 0)
+        .unwrap_or((0, 0));
+    if den > 0 {
+        // Fixed weights.
+    } else if all_settled {
+        // Plain arithmetic, so that builds with overflow checks keep checking the bound: every weight is in
+        // [1, 2¹⁶] (set so above, or the initial 2¹⁶), so |w · x| ≤ 2⁴⁷ and the sums of G ≤ 32 terms are < 2⁵³.
+        #[allow(clippy::arithmetic_side_effects)]
+        unroll::zip_each(&mut state.weight_q16, x, |g, &mut w, &v| {
+            // w ≤ 2¹⁶: w · x is an i32 × i32 product.
+            let w = (w & (used >> g & 1).wrapping_neg()) as i32;
+            num += i64::from(w) * i64::from(v);
+            den += i64::from(w);
+        });
+    } else {
+        unroll::each(x, |g, v| {
+            // G ≤ 32 values of `i32`: |num| ≤ 2³⁶, cannot wrap.
+            num = num.wrapping_add(i64::from(v & (used >> g & 1).wrapping_neg() as i32));
+        });
+        den = i64::from(used.count_ones());
+    }
+    (num, den)
 }
 
 #[cfg(test)]

@@ -148,7 +148,7 @@ pub(super) fn byte_mask(block: &[u8; 64], a: u8, b: u8) -> u64 {
     "x86_64+avx512f+avx512bw+avx512vl+avx2+bmi1+bmi2+lzcnt+popcnt",
     "x86_64+avx2+bmi1+bmi2+lzcnt+popcnt"
 ))]
-pub(super) fn parse_chunk(
+pub fn parse_chunk(
     b: &[u8],
     first_line: usize,
     names: &[&str],
@@ -233,12 +233,7 @@ pub(super) fn parse_chunk(
 /// value that is not finite (`nan`, `inf`, `1e400`): an error, except NaN in `temp_c` (a sample without a
 /// temperature, as [`Recording::write`] writes it).
 #[cold]
-pub(super) fn general_cell(
-    cell: &[u8],
-    line: usize,
-    col: usize,
-    names: &[&str],
-) -> Result<f64, CsvError> {
+pub fn general_cell(cell: &[u8], line: usize, col: usize, names: &[&str]) -> Result<f64, CsvError> {
     let text = String::from_utf8_lossy(cell);
     let text = text.trim();
     let name = names.get(col).unwrap_or(&"?");
@@ -301,7 +296,19 @@ pub(super) fn find_header(buf: &[u8], eof: bool) -> Option<(usize, (usize, usize
 pub(super) struct Layout<'a> {
     pub(super) target_of: &'a [Option<usize>],
     pub(super) names: &'a [&'a str],
+    /// The parser of one piece ([`parse_chunk`], or another for a comparison).
+    pub(super) piece: PieceParser,
 }
+
+/// The parser of one piece of whole lines (see [`parse_chunk`], the reader's own, for the contract); a parameter
+/// only for the like-for-like comparison with the `csv` crate (`examples/csv_crate_blocks.rs`).
+pub type PieceParser = fn(
+    &[u8],
+    usize,
+    &[&str],
+    &mut [Option<&mut [f64]>],
+    &mut Vec<usize>,
+) -> Result<usize, CsvError>;
 
 /// Parses whole lines `region` (whose first line follows file line `line_before`) in parallel pieces, writing
 /// their rows into `targets` from row `base` on (lengthening them if needed); returns the file line number of its
@@ -370,7 +377,7 @@ pub(super) fn parse_region(
         .zip(first_lines.par_iter())
         .map(|((piece, view), &first)| {
             let mut empty = Vec::new();
-            parse_chunk(piece, first, layout.names, view, &mut empty).map(|n| (n, empty))
+            (layout.piece)(piece, first, layout.names, view, &mut empty).map(|n| (n, empty))
         })
         .collect();
     drop(views);

@@ -198,9 +198,11 @@ fn any_block_size_gives_the_same_result() {
     let want = Recording::parse(&bad).unwrap_err().to_string();
     assert!(want.starts_with("line 164, column 1 (t)"), "{want}");
     for block in [1, 2, 7, 64, 65, 200, 1 << 20] {
-        let got = Recording::parse_blocks(Trickle(text.as_bytes(), 0), 0, "t", block).unwrap();
+        let got = Recording::parse_blocks(Trickle(text.as_bytes(), 0), 0, "t", block, parse_chunk)
+            .unwrap();
         assert_eq!(got, whole, "block {block}");
-        let e = Recording::parse_blocks(Trickle(bad.as_bytes(), 0), 9, "t", block).unwrap_err();
+        let e = Recording::parse_blocks(Trickle(bad.as_bytes(), 0), 9, "t", block, parse_chunk)
+            .unwrap_err();
         assert_eq!(e.to_string(), want, "block {block}");
     }
 }
@@ -297,8 +299,8 @@ proptest::proptest! {
                 Ok(v) => format!("{v:?}"),
                 Err(e) => e.to_string(),
             };
-            let whole = show(Recording::parse_blocks(&b[..], b.len() as u64, "p", BLOCK_BYTES));
-            let small = show(Recording::parse_blocks(&b[..], 7, "p", block));
+            let whole = show(Recording::parse_blocks(&b[..], b.len() as u64, "p", BLOCK_BYTES, parse_chunk));
+            let small = show(Recording::parse_blocks(&b[..], 7, "p", block, parse_chunk));
             proptest::prop_assert_eq!(whole, small);
         }
     }
