@@ -5,12 +5,12 @@
 //! increase from row to row (steps longer than 1.5 sample intervals give a warning), and there must be a data row;
 //! anything else is an error with its line and column.
 //!
-//! **Why a reader of our own** (`parse.rs`) and not the `csv` crate: measured on the 8-h paper-size file (545 410 rows
-//! × 97 columns, 503 MB, `examples/csv_crate_reader.rs`, 2-core machine, 2026-11-24), the `csv` crate with
-//! `fast-float2` reads it in 2.07–2.19 s on one core, ours in 0.58–0.71 s (its blocks parsed on both cores), with
-//! the same values bit for bit. `ground allan` on that file takes 1.02–1.11 s end to end, so the crate would make it
-//! ≈ 2.5 s (+ 140 %), well past the 25 % that would have decided for the crate. For large data `.npy` input
-//! (`formats::npy`) skips text parsing altogether.
+//! **Why a reader of our own** (`parse.rs`) and not the `csv` crate: like for like (`examples/csv_crate_blocks.rs`:
+//! the same file, blocks and pieces under rayon on the same 2 threads, only each piece's parsing swapped for
+//! `csv::ByteRecord` + `fast-float2`, the same `Recording` bit for bit), the crate takes 1.87× the reader's time on
+//! the 8-h paper-size file (545 410 rows × 97 columns, 503 MB: 1.99 s against 1.12 s, medians of 5 pairs, release
+//! build, 2026-11-26; `docs/performance.md`). The rule was to take the crate within 15 %. For large data `.npy`
+//! input (`formats::npy`) skips text parsing altogether.
 
 use rayon::prelude::*;
 use std::fmt::Write as _;
