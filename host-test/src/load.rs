@@ -3,12 +3,94 @@
 //! within its first bytes) or MIMU4444 stream (a valid 0xAA frame within its first bytes), and reads calibration
 //! files of either array (16 groups: our board; 8 IMUs: the MIMU4444) in any of their forms (.bin, .json, .toml).
 
+use crate::calibrate::CalibError;
+use crate::formats::csv::CsvError;
 use crate::formats::framelog::FrameLog;
+use crate::formats::mimu::MimuError;
+use crate::formats::npy::NpyError;
 use crate::recording::{AxisMean, Recording};
-use anyhow::{Context, Result, bail};
 use shared::calib::CalibrationTable;
 use shared::wire::frame::{GROUPS, SYNC};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// Why a recording or a calibration could not be loaded; every variant names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadError {
+    /// Neither the extension nor the first bytes say what the file holds.
+    #[error(
+        "{}: not a recognised recording (expected an interchange .csv, a NumPy .npy array, an FPGA frame log with \
+         the sync marker 1A CF FC 1D, or a MIMU4444 stream of 0xAA frames)",
+        path.display()
+    )]
+    Unrecognised {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The file could not be read.
+    #[error("reading {}", path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        #[source]
+        source: std::io::Error,
+    },
+    /// An interchange CSV is malformed.
+    #[error("{}", path.display())]
+    Csv {
+        /// The file.
+        path: PathBuf,
+        /// The line and column, and what is wrong.
+        #[source]
+        source: CsvError,
+    },
+    /// A `.npy` array is refused (the error names the file).
+    #[error(transparent)]
+    Npy(#[from] NpyError),
+    /// A MIMU4444 stream holds no usable frame.
+    #[error("{}", path.display())]
+    Mimu {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong in it.
+        #[source]
+        source: MimuError,
+    },
+    /// A frame log holds no valid frame.
+    #[error("{}: no valid frame found in {bytes} bytes ({crc_errors} CRC errors)", path.display())]
+    NoFrames {
+        /// The file.
+        path: PathBuf,
+        /// Its length.
+        bytes: usize,
+        /// Frames that failed their CRC.
+        crc_errors: u32,
+    },
+    /// A calibration was given for an input it cannot apply to.
+    #[error("{}: {reason}", path.display())]
+    CalibrationRefused {
+        /// The input.
+        path: PathBuf,
+        /// Why.
+        reason: &'static str,
+    },
+    /// A calibration file could not be read (the error names the file and its cause; not chained, since
+    /// `CalibError` prints its cause itself).
+    #[error("{0}")]
+    Calibration(CalibError),
+}
+
+impl LoadError {
+    fn refused(path: &Path, reason: &'static str) -> LoadError {
+        LoadError::CalibrationRefused {
+            path: path.to_path_buf(),
+            reason,
+        }
+    }
+}
+
+/// The result of this module's functions.
+pub type Result<T, E = LoadError> = std::result::Result<T, E>;
 
 /// What a file holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -44,11 +126,9 @@ pub fn detect(path: &Path, head: &[u8]) -> Result<InputKind> {
     if (0..head.len().min(512)).any(|i| crate::formats::mimu::Frame::decode(&head[i..]).is_ok()) {
         return Ok(InputKind::Mimu);
     }
-    bail!(
-        "{}: not a recognised recording (expected an interchange .csv, a NumPy .npy array, an FPGA frame log with the sync marker \
-         1A CF FC 1D, or a MIMU4444 stream of 0xAA frames)",
-        path.display()
-    )
+    Err(LoadError::Unrecognised {
+        path: path.to_path_buf(),
+    })
 }
 
 /// The first bytes of a `.npy` file.
@@ -79,7 +159,7 @@ pub const MIMU_IMUS: usize = crate::formats::mimu::IMUS;
 /// Reads a calibration file of either array (`.bin`, `.json`, `.toml`), told apart by its number of groups.
 pub fn read_any_calibration(path: &Path) -> Result<Calibration> {
     // The calibration errors already name the file.
-    let err = |e: crate::calibrate::CalibError| anyhow::anyhow!("{e}");
+    let err = LoadError::Calibration;
     let f = crate::calibrate::read_calibration_any(path).map_err(err)?;
     if f.groups.len() == GROUPS {
         Ok(Calibration::Board(Box::new(
@@ -183,7 +263,7 @@ pub fn load_selected(
     let array = crate::formats::npy::NpyArray::open(path)?;
     let (recording, means) = array
         .recording_with_means(columns)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        .map_err(|e| e.in_file(path))?;
     let loaded = Loaded {
         recording,
         notes: npy_notes(path, &array),
@@ -195,11 +275,11 @@ pub fn load_selected(
 /// A `.npy` array holds calibrated values: an error when a calibration is given.
 fn refuse_npy_calibration(path: &Path, cal: Option<&Calibration>) -> Result<()> {
     if cal.is_some() {
-        bail!(
-            "{}: a .npy array holds calibrated values (°/s, g); a calibration applies only to raw recordings (FPGA \
+        return Err(LoadError::refused(
+            path,
+            "a .npy array holds calibrated values (°/s, g); a calibration applies only to raw recordings (FPGA \
              frame log, MIMU4444 stream)",
-            path.display()
-        );
+        ));
     }
     Ok(())
 }
@@ -219,7 +299,10 @@ pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_millihz: u64)
     // A CSV or .npy is known by its name and streamed (never held whole in memory); the others are read whole.
     let bytes = match detect(path, &[]) {
         Ok(InputKind::Csv | InputKind::Npy) => Vec::new(),
-        _ => std::fs::read(path).with_context(|| format!("reading {}", path.display()))?,
+        _ => std::fs::read(path).map_err(|source| LoadError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?,
     };
     match detect(path, &bytes)? {
         InputKind::Csv => load_csv(path, cal),
@@ -232,14 +315,16 @@ pub fn load_with(path: &Path, cal: Option<&Calibration>, base_rate_millihz: u64)
 /// An interchange CSV (streamed from `path`; calibrated already, so `cal` must be `None`).
 fn load_csv(path: &Path, cal: Option<&Calibration>) -> Result<Loaded> {
     if cal.is_some() {
-        bail!(
-            "{}: an interchange CSV holds calibrated values (°/s, g); a calibration applies only to raw \
+        return Err(LoadError::refused(
+            path,
+            "an interchange CSV holds calibrated values (°/s, g); a calibration applies only to raw \
              recordings (FPGA frame log, MIMU4444 stream)",
-            path.display()
-        );
+        ));
     }
-    let (recording, warnings) =
-        Recording::read(path).with_context(|| path.display().to_string())?;
+    let (recording, warnings) = Recording::read(path).map_err(|source| LoadError::Csv {
+        path: path.to_path_buf(),
+        source,
+    })?;
     Ok(Loaded {
         recording,
         notes: Vec::new(),
@@ -256,12 +341,9 @@ fn load_npy(path: &Path, bytes: &[u8], cal: Option<&Calibration>) -> Result<Load
     let array = if bytes.is_empty() {
         crate::formats::npy::NpyArray::open(path)?
     } else {
-        crate::formats::npy::NpyArray::from_bytes(bytes)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+        crate::formats::npy::NpyArray::from_bytes(bytes).map_err(|e| e.in_file(path))?
     };
-    let recording = array
-        .recording()
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let recording = array.recording().map_err(|e| e.in_file(path))?;
     Ok(Loaded {
         recording,
         notes: npy_notes(path, &array),
@@ -271,15 +353,17 @@ fn load_npy(path: &Path, bytes: &[u8], cal: Option<&Calibration>) -> Result<Load
 
 /// A MIMU4444 stream, through `cal` (an 8-IMU table) or the nominal scales.
 fn load_mimu(path: &Path, bytes: &[u8], cal: Option<&Calibration>) -> Result<Loaded> {
-    let m = crate::formats::mimu::parse(bytes)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let m = crate::formats::mimu::parse(bytes).map_err(|source| LoadError::Mimu {
+        path: path.to_path_buf(),
+        source,
+    })?;
     let table = match cal {
         Some(Calibration::Mimu(t)) => Some(t.as_ref()),
         Some(Calibration::Board(_)) => {
-            bail!(
-                "{}: a 16-group calibration cannot apply to the 8-IMU MIMU4444 array",
-                path.display()
-            )
+            return Err(LoadError::refused(
+                path,
+                "a 16-group calibration cannot apply to the 8-IMU MIMU4444 array",
+            ));
         }
         None => None,
     };
@@ -335,21 +419,20 @@ fn load_frame_log(
     let board = match cal {
         Some(Calibration::Board(t)) => Some(t.as_ref()),
         Some(Calibration::Mimu(_)) => {
-            bail!(
-                "{}: an 8-IMU calibration cannot apply to our 16-group frames",
-                path.display()
-            )
+            return Err(LoadError::refused(
+                path,
+                "an 8-IMU calibration cannot apply to our 16-group frames",
+            ));
         }
         None => None,
     };
     let log = FrameLog::decode(bytes);
     if log.frames.is_empty() {
-        bail!(
-            "{}: no valid frame found in {} bytes ({} CRC errors)",
-            path.display(),
-            bytes.len(),
-            log.counters.crc_errors
-        );
+        return Err(LoadError::NoFrames {
+            path: path.to_path_buf(),
+            bytes: bytes.len(),
+            crc_errors: log.counters.crc_errors,
+        });
     }
     let factory = CalibrationTable::factory();
     let recording = log.to_recording(board.unwrap_or(&factory), base_rate_millihz);

@@ -1,13 +1,91 @@
 //! Command-line description of a simulation (`ground simulate`): presets and effect flags → [`SimConfig`], and
 //! writing the result as a frame log or an interchange CSV.
 
+use crate::sim::SimError;
 use crate::sim::{
     Axis, CalSpread, Channel, Chunk, CommonDrift, CommonMode, DriftKind, FrameOpts, Outlier,
     PartSpread, Periodic, SimConfig, Simulator, Thermal, csv_header,
 };
-use anyhow::{Context, Result, bail};
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// Why a simulation's description or its output was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum SimCliError {
+    /// An option's value is malformed or out of range; the message names the option and the value.
+    #[error("{0}")]
+    Invalid(String),
+    /// A number in an option's value does not parse: what was being read, and the parser's reason.
+    #[error("{what}")]
+    Number {
+        /// The option and the value.
+        what: String,
+        /// The parser's reason.
+        #[source]
+        source: NumberError,
+    },
+    /// The simulator refused the configuration.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// The output file could not be created or written.
+    #[error("{what} {}", path.display())]
+    Io {
+        /// `creating` or `writing`.
+        what: &'static str,
+        /// The output file.
+        path: PathBuf,
+        /// The cause.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// A number that does not parse.
+#[derive(Debug, thiserror::Error)]
+pub enum NumberError {
+    /// An integer (a group).
+    #[error(transparent)]
+    Int(#[from] std::num::ParseIntError),
+    /// A real number.
+    #[error(transparent)]
+    Float(#[from] std::num::ParseFloatError),
+}
+
+/// The result of this module's functions.
+pub type Result<T, E = SimCliError> = std::result::Result<T, E>;
+
+/// Refuses with a message (an option's value malformed or out of range).
+macro_rules! bail {
+    ($($arg:tt)*) => {
+        return Err(SimCliError::Invalid(format!($($arg)*)))
+    };
+}
+
+/// What was being read when a value was missing (`Option`) or did not parse (a number's `Result`).
+trait Context<T> {
+    fn with_context(self, what: impl FnOnce() -> String) -> Result<T>;
+    fn context(self, what: &str) -> Result<T>
+    where
+        Self: Sized,
+    {
+        self.with_context(|| what.to_string())
+    }
+}
+
+impl<T> Context<T> for Option<T> {
+    fn with_context(self, what: impl FnOnce() -> String) -> Result<T> {
+        self.ok_or_else(|| SimCliError::Invalid(what()))
+    }
+}
+
+impl<T, E: Into<NumberError>> Context<T> for std::result::Result<T, E> {
+    fn with_context(self, what: impl FnOnce() -> String) -> Result<T> {
+        self.map_err(|e| SimCliError::Number {
+            what: what(),
+            source: e.into(),
+        })
+    }
+}
 
 /// Parses axes: `gyro`, `accel`, `all`, or a comma list of `gx gy gz ax ay az`.
 pub fn parse_axes(s: &str) -> Result<Vec<Axis>> {
@@ -453,10 +531,14 @@ pub fn write(cfg: SimConfig, path: &Path, mut progress: impl FnMut(u64)) -> Resu
         ),
     };
     let with_temp = cfg.thermal.is_some();
-    let mut sim = Simulator::new(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut sim = Simulator::new(cfg)?;
     let mut out = std::io::BufWriter::with_capacity(
         1 << 20,
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+        std::fs::File::create(path).map_err(|source| SimCliError::Io {
+            what: "creating",
+            path: path.to_path_buf(),
+            source,
+        })?,
     );
     let mut chunk = Chunk::default();
     let mut text = String::new();
@@ -480,7 +562,11 @@ pub fn write(cfg: SimConfig, path: &Path, mut progress: impl FnMut(u64)) -> Resu
         }
         out.flush()
     };
-    run().with_context(|| format!("writing {}", path.display()))?;
+    run().map_err(|source| SimCliError::Io {
+        what: "writing",
+        path: path.to_path_buf(),
+        source,
+    })?;
     Ok(sim)
 }
 
@@ -634,7 +720,7 @@ impl RecordingSink {
 /// Runs a simulation into an in-memory [`Recording`](crate::recording::Recording) (see [`RecordingSink`]).
 pub fn recording(cfg: SimConfig) -> Result<crate::recording::Recording> {
     let mut sink = RecordingSink::new(cfg.samples as usize, cfg.thermal.is_some());
-    let mut sim = Simulator::new(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut sim = Simulator::new(cfg)?;
     let mut chunk = Chunk::default();
     while sim.next_chunk(&mut chunk) > 0 {
         sink.push(&chunk);

@@ -10,17 +10,39 @@
 //! ([`crate::allan`], octave τ) of the six axes of the Fused reports decoded from the core's telemetry.
 
 use crate::allan::{self, DevKind, TauSpec};
+use crate::calibrate::CalibError;
 use crate::calibrate::{CalibrationFile, ThermalOptions, fit_thermal};
 use crate::formats::framelog::FrameLog;
 use crate::formats::telemetry::TelemetryLog;
 use crate::replay::{ReplayOptions, replay};
+use crate::sim::SimError;
 use crate::sim::{Channel, Chunk, SimConfig, Simulator};
+use crate::simcli::SimCliError;
 use crate::simcli::{self, EffectArgs, TemperatureProfile};
-use anyhow::{Context, Result};
 use shared::bus::BusConfig;
 use shared::calib::{AXES, CalibrationTable};
 use shared::pipeline::PipelineConfig;
 use shared::wire::frame::GROUPS;
+
+/// Why the check could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum ThermalCheckError {
+    /// The simulator refused a configuration.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// The thermal flags were refused.
+    #[error(transparent)]
+    Flags(#[from] SimCliError),
+    /// The thermal fit or the calibration table failed.
+    #[error(transparent)]
+    Calib(#[from] CalibError),
+    /// The simulated board has no thermal coefficient for a group.
+    #[error("group")]
+    NoThermalTruth,
+}
+
+/// The result of this module's functions.
+pub type Result<T, E = ThermalCheckError> = std::result::Result<T, E>;
 
 /// Parameters of the check.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -174,7 +196,7 @@ pub fn config(
     hours: f64,
     temp: TemperatureProfile,
 ) -> Result<SimConfig> {
-    let mut cfg = crate::sim::preset::seed_config(seed).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut cfg = crate::sim::preset::seed_config(seed)?;
     cfg.rate_hz = o.rate_hz;
     cfg.samples = (hours * 3600.0 * o.rate_hz).round() as u64;
     cfg.frames = simcli::frame_opts(o.rate_hz, crate::FPGA_BASE_RATE_HZ);
@@ -190,7 +212,7 @@ pub fn config(
 
 /// The frame log of a simulation, and the simulator (for its true parameters).
 pub fn frames(cfg: SimConfig) -> Result<(Vec<u8>, Simulator)> {
-    let mut sim = Simulator::new(cfg).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut sim = Simulator::new(cfg)?;
     let mut bytes = Vec::with_capacity(sim.remaining() as usize * shared::wire::frame::FRAME_LEN);
     let mut chunk = Chunk::default();
     while sim.next_chunk(&mut chunk) > 0 {
@@ -244,7 +266,9 @@ pub fn run(o: &ThermalCheckOptions) -> Result<ThermalCheck> {
     let (mut lin_z, mut quad_z) = (Vec::new(), Vec::new());
     for (c, (ch, acc)) in Channel::ALL.iter().zip(&mut fit_acc).enumerate() {
         for g in 0..GROUPS {
-            let truth = ramp_sim.thermal_coef_counts(g, *ch).context("group")?;
+            let truth = ramp_sim
+                .thermal_coef_counts(g, *ch)
+                .ok_or(ThermalCheckError::NoThermalTruth)?;
             let t = &fit.terms[g];
             let (lin, quad) = if c < 4 {
                 (t.gyro_lin_counts_per_c[c], t.gyro_quad_counts_per_c2[c])

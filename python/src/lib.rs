@@ -201,7 +201,7 @@ fn run_diagnose(
     rate: Option<f64>,
 ) -> PyResult<(Recording, diag::Report)> {
     let rec = recording_of(py, source, rate)?;
-    let r = diag::diagnose(&rec, &diag::Options::default()).map_err(Error::new_err)?;
+    let r = diag::diagnose(&rec, &diag::Options::default()).map_err(lib_err)?;
     Ok((rec, r))
 }
 

@@ -381,22 +381,37 @@ const THERMAL_PREFERENCE: f64 = 0.8;
 /// Shortest record accepted (each half must hold a few octaves of averaging blocks).
 pub const MIN_SAMPLES: usize = 1000;
 
+/// Why a recording cannot be diagnosed.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum DiagnoseError {
+    /// No sample interval: fewer than two samples, or `t` not increasing.
+    #[error("fewer than two samples, or time not increasing")]
+    NoTimeBase,
+    /// Fewer than [`MIN_SAMPLES`] samples.
+    #[error(
+        "{samples} samples: too short for a diagnosis (at least {MIN_SAMPLES}; hours are better)"
+    )]
+    TooShort {
+        /// Samples in the record.
+        samples: usize,
+    },
+    /// No axis has two sensors to compare.
+    #[error("no axis has at least two sensors")]
+    NoAxis,
+}
+
 /// Runs the diagnosis on a recording (all sensor columns; `temp_c` used when present). Phases: the axes
 /// ([`axis_works`]), each axis measured and its candidates selected ([`analyse_axis`]), the second look at axes
 /// without an effect ([`retest_quiet_axes`]), and each axis's report ([`report_axis`]).
-pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, String> {
-    let tau0 = rec
-        .sample_interval_s()
-        .ok_or("fewer than two samples, or time not increasing")?;
+pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, DiagnoseError> {
+    let tau0 = rec.sample_interval_s().ok_or(DiagnoseError::NoTimeBase)?;
     let n = rec.len();
     if n < MIN_SAMPLES {
-        return Err(format!(
-            "{n} samples: too short for a diagnosis (at least {MIN_SAMPLES}; hours are better)"
-        ));
+        return Err(DiagnoseError::TooShort { samples: n });
     }
     let raw = axis_works(rec);
     if raw.is_empty() {
-        return Err("no axis has at least two sensors".into());
+        return Err(DiagnoseError::NoAxis);
     }
     // One sensor's bias step, found against its neighbours and removed before anything else is measured.
     let found: Vec<Vec<steps::Step>> = raw

@@ -21,7 +21,119 @@
 use super::csv::{AxisMean, Recording, SensorKind, column_name};
 use npyz::{DType, TypeChar};
 use rayon::prelude::*;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// Why a `.npy` array is refused, naming the row and column where a value is at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum NpyError {
+    /// The file could not be opened or its size read.
+    #[error("reading {}", path.display())]
+    Open {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        #[source]
+        source: std::io::Error,
+    },
+    /// An error in the file `path`.
+    #[error("{}", path.display())]
+    InFile {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong in it.
+        #[source]
+        source: Box<NpyError>,
+    },
+    /// Not a `.npy` file: the magic, the version or the header's length is wrong.
+    #[error("not a readable .npy file: {0}")]
+    NotNpy(String),
+    /// The header could not be read or parsed.
+    #[error("not a readable .npy file")]
+    Header(#[source] std::io::Error),
+    /// Not a 2-D array.
+    #[error("expected a 2-D array (samples, 1 + 6·groups), found shape {0:?}")]
+    Shape(Vec<u64>),
+    /// The shape does not fit this machine's address space.
+    #[error("the array is too large for this machine")]
+    TooLarge,
+    /// A structured array (its dtype).
+    #[error("a structured array (dtype {0}) is not read: expected a plain 2-D float64 array")]
+    Structured(String),
+    /// An object array.
+    #[error(
+        "an object array (dtype object, pickled Python objects) is not read: save the values as float64 \
+         (`arr.astype('<f8')`)"
+    )]
+    Object,
+    /// A big-endian array (its dtype).
+    #[error(
+        "a big-endian array (dtype {0}) is not read: save it little-endian (`arr.astype('<f8')`)"
+    )]
+    BigEndian(String),
+    /// Any other element type (its dtype).
+    #[error(
+        "dtype {0} is not read: expected float64 or float32 values (integers and booleans are converted)"
+    )]
+    DType(String),
+    /// The number of columns is not 1 + 6·groups.
+    #[error("expected 1 + 6·groups columns (t, then gx gy gz ax ay az per group), found {0}")]
+    Columns(usize),
+    /// The array has no rows.
+    #[error("no samples: the array has no rows")]
+    NoRows,
+    /// The file is shorter than its shape says.
+    #[error(
+        "reading the data: the file holds {have} bytes after the header, the shape {rows} × {cols} of {descr} \
+         needs {need}"
+    )]
+    Truncated {
+        /// Bytes after the header.
+        have: u64,
+        /// Rows of the shape.
+        rows: usize,
+        /// Columns of the shape.
+        cols: usize,
+        /// The dtype.
+        descr: String,
+        /// Bytes the shape needs.
+        need: usize,
+    },
+    /// Reading the data failed.
+    #[error("reading the data")]
+    Data(#[source] std::io::Error),
+    /// A value that is not finite (the first in column order).
+    #[error("row {row}, column {column} ({name}): {value} is not a finite number")]
+    NotFinite {
+        /// Row (from 0).
+        row: usize,
+        /// Array column (0 is `t`).
+        column: usize,
+        /// The column's interchange name.
+        name: String,
+        /// The value.
+        value: f64,
+    },
+    /// `t` does not increase.
+    #[error("row {row}, column 0 (t): {t} s is not after {previous} s on row {}: t must increase", row - 1)]
+    TimeNotIncreasing {
+        /// Row (from 0).
+        row: usize,
+        /// Its time, s.
+        t: f64,
+        /// The previous row's time, s.
+        previous: f64,
+    },
+}
+
+impl NpyError {
+    /// This error, in the file `path`.
+    pub fn in_file(self, path: &Path) -> NpyError {
+        NpyError::InFile {
+            path: path.to_path_buf(),
+            source: Box::new(self),
+        }
+    }
+}
 
 /// Sensor columns per group: gyro x y z, accel x y z.
 const PER_GROUP: usize = 6;
@@ -85,25 +197,16 @@ impl Elem {
     }
 
     /// The element type of a dtype, or why it is refused.
-    fn of(dtype: &DType) -> Result<Elem, String> {
+    fn of(dtype: &DType) -> Result<Elem, NpyError> {
         let DType::Plain(ts) = dtype else {
-            return Err(format!(
-                "a structured array (dtype {}) is not read: expected a plain 2-D float64 array",
-                dtype.descr()
-            ));
+            return Err(NpyError::Structured(dtype.descr()));
         };
         let (tc, size) = (ts.type_char(), ts.size_field());
         if tc == TypeChar::Object {
-            return Err(
-                "an object array (dtype object, pickled Python objects) is not read: save the values as float64 \
-                 (`arr.astype('<f8')`)"
-                    .into(),
-            );
+            return Err(NpyError::Object);
         }
         if ts.endianness() == npyz::Endianness::Big && size > 1 {
-            return Err(format!(
-                "a big-endian array (dtype {ts}) is not read: save it little-endian (`arr.astype('<f8')`)"
-            ));
+            return Err(NpyError::BigEndian(ts.to_string()));
         }
         match (tc, size) {
             (TypeChar::Float, 8) => Ok(Elem::F8),
@@ -111,9 +214,7 @@ impl Elem {
             (TypeChar::Int, 1 | 2 | 4 | 8) => Ok(Elem::Int(size as usize)),
             (TypeChar::Uint, 1 | 2 | 4 | 8) => Ok(Elem::Uint(size as usize)),
             (TypeChar::Bool, 1) => Ok(Elem::Bool),
-            _ => Err(format!(
-                "dtype {ts} is not read: expected float64 or float32 values (integers and booleans are converted)"
-            )),
+            _ => Err(NpyError::DType(ts.to_string())),
         }
     }
 
@@ -199,31 +300,29 @@ pub struct NpyArray<'a> {
 
 impl NpyArray<'static> {
     /// Opens a `.npy` file and checks its header (see module docs).
-    pub fn open(path: &Path) -> anyhow::Result<NpyArray<'static>> {
-        let file = std::fs::File::open(path)
-            .map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
-        let len = file
-            .metadata()
-            .map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?
-            .len();
-        NpyArray::new(Source::File(file, len))
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    pub fn open(path: &Path) -> Result<NpyArray<'static>, NpyError> {
+        let open = |source| NpyError::Open {
+            path: path.to_path_buf(),
+            source,
+        };
+        let file = std::fs::File::open(path).map_err(open)?;
+        let len = file.metadata().map_err(open)?.len();
+        NpyArray::new(Source::File(file, len)).map_err(|e| e.in_file(path))
     }
 }
 
 impl<'a> NpyArray<'a> {
     /// A `.npy` file's bytes in memory, its header checked (see module docs).
-    pub fn from_bytes(bytes: &'a [u8]) -> Result<NpyArray<'a>, String> {
+    pub fn from_bytes(bytes: &'a [u8]) -> Result<NpyArray<'a>, NpyError> {
         NpyArray::new(Source::Bytes(bytes))
     }
 
-    fn new(src: Source<'a>) -> Result<NpyArray<'a>, String> {
-        let unreadable = |what: &str| format!("not a readable .npy file: {what}");
+    fn new(src: Source<'a>) -> Result<NpyArray<'a>, NpyError> {
+        let unreadable = |what: &str| NpyError::NotNpy(what.into());
         // Magic, version, header length: 10 bytes in version 1, 12 in versions 2 and 3.
         let mut pre = [0u8; 12];
         let n = src.len().min(12) as usize;
-        src.read_at(&mut pre[..n], 0)
-            .map_err(|e| unreadable(&e.to_string()))?;
+        src.read_at(&mut pre[..n], 0).map_err(NpyError::Header)?;
         if !pre.starts_with(MAGIC) {
             return Err(unreadable("it does not start with \\x93NUMPY"));
         }
@@ -236,20 +335,14 @@ impl<'a> NpyArray<'a> {
             return Err(unreadable("the file ends inside the header"));
         }
         let mut head = vec![0u8; text as usize];
-        src.read_at(&mut head, 0)
-            .map_err(|e| unreadable(&e.to_string()))?;
-        let header =
-            npyz::NpyHeader::from_reader(&head[..]).map_err(|e| unreadable(&e.to_string()))?;
+        src.read_at(&mut head, 0).map_err(NpyError::Header)?;
+        let header = npyz::NpyHeader::from_reader(&head[..]).map_err(NpyError::Header)?;
         let (rows, cols) = match header.shape() {
             &[rows, cols] => (rows, cols),
-            s => {
-                return Err(format!(
-                    "expected a 2-D array (samples, 1 + 6·groups), found shape {s:?}"
-                ));
-            }
+            s => return Err(NpyError::Shape(s.to_vec())),
         };
         let (Ok(rows), Ok(cols)) = (usize::try_from(rows), usize::try_from(cols)) else {
-            return Err("the array is too large for this machine".into());
+            return Err(NpyError::TooLarge);
         };
         let dtype = header.dtype();
         let elem = Elem::of(&dtype)?;
@@ -259,23 +352,24 @@ impl<'a> NpyArray<'a> {
             d => d.descr(),
         };
         if cols < 1 + PER_GROUP || (cols - 1) % PER_GROUP != 0 {
-            return Err(format!(
-                "expected 1 + 6·groups columns (t, then gx gy gz ax ay az per group), found {cols}"
-            ));
+            return Err(NpyError::Columns(cols));
         }
         if rows == 0 {
-            return Err("no samples: the array has no rows".into());
+            return Err(NpyError::NoRows);
         }
         let need = rows
             .checked_mul(cols)
             .and_then(|n| n.checked_mul(elem.size()))
-            .ok_or("the array is too large for this machine")?;
+            .ok_or(NpyError::TooLarge)?;
         let have = src.len() - text;
         if have < need as u64 {
-            return Err(format!(
-                "reading the data: the file holds {have} bytes after the header, the shape {rows} × {cols} of \
-                 {descr} needs {need}"
-            ));
+            return Err(NpyError::Truncated {
+                have,
+                rows,
+                cols,
+                descr,
+                need,
+            });
         }
         Ok(NpyArray {
             src,
@@ -333,13 +427,13 @@ impl<'a> NpyArray<'a> {
     }
 
     /// The whole recording: `t` and every sensor column.
-    pub fn recording(&self) -> Result<Recording, String> {
+    pub fn recording(&self) -> Result<Recording, NpyError> {
         self.recording_of(&[])
     }
 
     /// The recording with only the named sensor columns (all when `names` is empty; names not in the array are
     /// left out, for the caller to report). Only those columns and `t` are ever materialised.
-    pub fn recording_of(&self, names: &[String]) -> Result<Recording, String> {
+    pub fn recording_of(&self, names: &[String]) -> Result<Recording, NpyError> {
         let wanted = self.wanted(names);
         let (data, _) = self.read_columns(&wanted, false)?;
         Ok(Self::assemble(&wanted, data))
@@ -350,7 +444,7 @@ impl<'a> NpyArray<'a> {
     pub fn recording_with_means(
         &self,
         names: &[String],
-    ) -> Result<(Recording, Vec<AxisMean>), String> {
+    ) -> Result<(Recording, Vec<AxisMean>), NpyError> {
         let wanted = self.wanted(names);
         let (data, means) = self.read_columns(&wanted, true)?;
         Ok((Self::assemble(&wanted, data), means))
@@ -381,7 +475,7 @@ impl<'a> NpyArray<'a> {
         &self,
         wanted: &[usize],
         means: bool,
-    ) -> Result<(Vec<Vec<f64>>, Vec<AxisMean>), String> {
+    ) -> Result<(Vec<Vec<f64>>, Vec<AxisMean>), NpyError> {
         let (rows, size) = (self.rows, self.elem.size());
         // Rows per block: ≈ BLOCK_BYTES of the array (C order: whole rows; Fortran order: of each column).
         let block_rows = if self.fortran {
@@ -448,23 +542,24 @@ impl<'a> NpyArray<'a> {
                     }
                     self.block_means(&cols, avg);
                 }
-                Ok::<_, String>(())
+                Ok::<_, NpyError>(())
             },
         )?;
         if let Some((j, i, x)) = bad.into_inner().unwrap_or_else(|e| e.into_inner()) {
-            return Err(format!(
-                "row {i}, column {j} ({}): {x} is not a finite number",
-                Self::name(j)
-            ));
+            return Err(NpyError::NotFinite {
+                row: i,
+                column: j,
+                name: Self::name(j),
+                value: x,
+            });
         }
         let t = out.first().map_or(&[][..], |t| t.as_slice());
         if let Some(i) = t.windows(2).position(|w| w[1] <= w[0]) {
-            return Err(format!(
-                "row {}, column 0 (t): {} s is not after {} s on row {i}: t must increase",
-                i + 1,
-                t[i + 1],
-                t[i]
-            ));
+            return Err(NpyError::TimeNotIncreasing {
+                row: i + 1,
+                t: t[i + 1],
+                previous: t[i],
+            });
         }
         Ok((out, mean_out))
     }
@@ -496,10 +591,10 @@ impl<'a> NpyArray<'a> {
         wanted: &[usize],
         chunks: &mut [&mut [f64]],
         buf: &mut Vec<u8>,
-    ) -> Result<(), String> {
+    ) -> Result<(), NpyError> {
         let size = self.elem.size();
         let n = chunks.first().map_or(0, |c| c.len());
-        let io = |e: std::io::Error| format!("reading the data: {e}");
+        let io = NpyError::Data;
         let at = |elem: usize| self.data_offset + (elem * size) as u64;
         if self.fortran {
             for (&j, chunk) in wanted.iter().zip(chunks.iter_mut()) {
@@ -568,14 +663,14 @@ fn divide(sums: &mut [f64], n: f64) {
 }
 
 /// Reads a whole `.npy` file (see module docs).
-pub fn read(path: &Path) -> anyhow::Result<Recording> {
+pub fn read(path: &Path) -> Result<Recording, NpyError> {
     NpyArray::open(path)?
         .recording()
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        .map_err(|e| e.in_file(path))
 }
 
 /// Parses a whole `.npy` file's bytes (see module docs); the error says what is wrong and where.
-pub fn parse(bytes: &[u8]) -> Result<Recording, String> {
+pub fn parse(bytes: &[u8]) -> Result<Recording, NpyError> {
     NpyArray::from_bytes(bytes)?.recording()
 }
 

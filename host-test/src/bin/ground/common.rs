@@ -73,7 +73,10 @@ pub fn calib(path: &Option<PathBuf>) -> Result<Option<shared::calib::Calibration
 
 /// A calibration of either array, for commands that read any recording.
 pub fn any_calib(path: &Option<PathBuf>) -> Result<Option<load::Calibration>> {
-    path.as_deref().map(load::read_any_calibration).transpose()
+    Ok(path
+        .as_deref()
+        .map(load::read_any_calibration)
+        .transpose()?)
 }
 
 pub fn parse_window(s: &str) -> Result<(f64, f64)> {

@@ -85,7 +85,7 @@ pub fn run(a: Args) -> Result<()> {
         min_blocks: a.min_blocks.unwrap_or(Options::default().min_blocks),
         ..Options::default()
     };
-    let r = diagnose::diagnose(&loaded.recording, &opts).map_err(anyhow::Error::msg)?;
+    let r = diagnose::diagnose(&loaded.recording, &opts)?;
     pb.finish_and_clear();
     let source = a.recording.display().to_string();
     let text = report::write(&r, &a.out, &source)?;
