@@ -348,6 +348,11 @@ pub struct EffectArgs {
     /// GROUP/ every group (common mode), e.g. gx:2e-4:600; with it one group's own, e.g. 7/ay:1e-4:90.
     #[arg(long)]
     pub periodic: Vec<String>,
+    /// A sensor's bandwidth, a single-pole low-pass response on its whole output (noise included, unit gain at
+    /// DC): [GROUP/]AXES:HZ, e.g. gyro:8 (every group's gyros) or 3/gx:4; `y_k = φ y_{k−1} + (1 − φ) x_k`,
+    /// φ = exp(−2π·HZ/rate). CSV output only.
+    #[arg(long = "bandwidth-hz")]
+    pub bandwidth_hz: Vec<String>,
     /// Temperature-driven bias of each raw channel: AXES:COEF[:SD], COEF in (°/s)/°C or g/°C, SD the spread between
     /// parts (repeatable: gyro and accel together); zero at 20 °C; board temperature from --temperature, else
     /// 20 °C ± 2 °C over 2 h plus 1 °C/h.
@@ -376,6 +381,7 @@ impl EffectArgs {
             && self.drift.is_empty()
             && self.sensor_drift.is_empty()
             && self.periodic.is_empty()
+            && self.bandwidth_hz.is_empty()
             && self.thermal.is_empty()
             && self.temperature.is_none()
             && self.outlier.is_empty()
@@ -514,9 +520,125 @@ fn parse_periodic(s: &str) -> Result<Periodic> {
     })
 }
 
+/// A sensor's bandwidth: the groups (all when `None`) and axes whose output passes a single-pole low-pass filter at
+/// `cutoff_hz` (`--bandwidth-hz`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Bandwidth {
+    /// Groups (all when `None`).
+    pub groups: Option<Vec<usize>>,
+    /// Axes.
+    pub axes: Vec<Axis>,
+    /// Cut-off, Hz.
+    pub cutoff_hz: f64,
+}
+
+impl EffectArgs {
+    /// The `--bandwidth-hz [GROUP/]AXES:HZ` options.
+    pub fn bandwidths(&self) -> Result<Vec<Bandwidth>> {
+        self.bandwidth_hz
+            .iter()
+            .map(|s| parse_bandwidth(s))
+            .collect()
+    }
+}
+
+/// One `--bandwidth-hz [GROUP/]AXES:HZ`.
+pub fn parse_bandwidth(s: &str) -> Result<Bandwidth> {
+    let usage = "--bandwidth-hz [GROUP/]AXES:HZ";
+    let (groups, rest) = match s.split_once('/') {
+        Some((g, rest)) => (
+            Some(
+                parse_groups(g)
+                    .map_err(|e| SimCliError::Invalid(format!("{usage}: groups '{g}': {e}")))?,
+            ),
+            rest,
+        ),
+        None => (None, s),
+    };
+    let (axes, rest) = rest.split_once(':').context(usage)?;
+    let v = nums(rest, "--bandwidth-hz", 1..=1)?;
+    if !(v[0].is_finite() && v[0] > 0.0) {
+        bail!("{usage}: HZ must be a positive number, found {}", v[0]);
+    }
+    if let Some(g) = &groups
+        && let Some(bad) = g.iter().find(|&&g| g >= crate::sim::GROUPS)
+    {
+        bail!("{usage}: group {bad} is not below {}", crate::sim::GROUPS);
+    }
+    Ok(Bandwidth {
+        groups,
+        axes: parse_axes(axes)?,
+        cutoff_hz: v[0],
+    })
+}
+
+/// The single-pole low-pass filters of a simulation's outputs ([`Bandwidth`]), applied to each chunk's physical
+/// values in place as the simulation streams (state kept across chunks; the first sample starts the filter at its
+/// own value, so a static record has no transient).
+#[derive(Clone, Debug)]
+pub struct BandwidthFilter {
+    /// (group, axis index 0..6, pole φ, state).
+    taps: Vec<(usize, usize, f64, Option<f64>)>,
+}
+
+impl BandwidthFilter {
+    /// The filters at output rate `rate_hz` (a later option for the same group and axis replaces an earlier one).
+    pub fn new(bands: &[Bandwidth], rate_hz: f64) -> Self {
+        let mut taps: Vec<(usize, usize, f64, Option<f64>)> = Vec::new();
+        for b in bands {
+            let phi = crate::noisefit::LowPass {
+                cutoff_hz: b.cutoff_hz,
+                tau0_s: 1.0 / rate_hz,
+            }
+            .pole();
+            let groups: Vec<usize> = b
+                .groups
+                .clone()
+                .unwrap_or_else(|| (0..crate::sim::GROUPS).collect());
+            for &g in &groups {
+                for a in &b.axes {
+                    let ai = a.index();
+                    taps.retain(|t| !(t.0 == g && t.1 == ai));
+                    taps.push((g, ai, phi, None));
+                }
+            }
+        }
+        Self { taps }
+    }
+
+    /// Filters the chunk's physical values in place.
+    pub fn apply(&mut self, chunk: &mut Chunk) {
+        let len = chunk.len.min(chunk.phys.len());
+        for (g, a, phi, state) in &mut self.taps {
+            if *g >= crate::sim::GROUPS || *a >= 6 {
+                continue;
+            }
+            for row in &mut chunk.phys[..len] {
+                let x = row[*g][*a];
+                let y = match *state {
+                    Some(prev) => *phi * prev + (1.0 - *phi) * x,
+                    None => x,
+                };
+                *state = Some(y);
+                row[*g][*a] = y;
+            }
+        }
+    }
+}
+
 /// Writes a simulation to `path`: `.bin` frame log (raw ADC codes through the true calibration, the FPGA's wire
 /// format) or `.csv` interchange CSV (physical values). `progress` gets the samples done.
-pub fn write(cfg: SimConfig, path: &Path, mut progress: impl FnMut(u64)) -> Result<Simulator> {
+pub fn write(cfg: SimConfig, path: &Path, progress: impl FnMut(u64)) -> Result<Simulator> {
+    write_filtered(cfg, &[], path, progress)
+}
+
+/// [`write`] with the outputs' bandwidths (`--bandwidth-hz`, [`BandwidthFilter`]); CSV output only when any.
+pub fn write_filtered(
+    cfg: SimConfig,
+    bands: &[Bandwidth],
+    path: &Path,
+    mut progress: impl FnMut(u64),
+) -> Result<Simulator> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -530,7 +652,13 @@ pub fn write(cfg: SimConfig, path: &Path, mut progress: impl FnMut(u64)) -> Resu
             path.display()
         ),
     };
+    if !csv && !bands.is_empty() {
+        bail!(
+            "--bandwidth-hz filters the physical values: write a .csv (the frame log's codes are made inside the simulator)"
+        );
+    }
     let with_temp = cfg.thermal.is_some();
+    let mut filter = BandwidthFilter::new(bands, cfg.rate_hz);
     let mut sim = Simulator::new(cfg)?;
     let mut out = std::io::BufWriter::with_capacity(
         1 << 20,
@@ -548,6 +676,7 @@ pub fn write(cfg: SimConfig, path: &Path, mut progress: impl FnMut(u64)) -> Resu
         }
         let mut done = 0u64;
         while sim.next_chunk(&mut chunk) > 0 {
+            filter.apply(&mut chunk);
             for i in 0..chunk.len {
                 if csv {
                     text.clear();
@@ -719,10 +848,20 @@ impl RecordingSink {
 
 /// Runs a simulation into an in-memory [`Recording`](crate::recording::Recording) (see [`RecordingSink`]).
 pub fn recording(cfg: SimConfig) -> Result<crate::recording::Recording> {
+    recording_filtered(cfg, &[])
+}
+
+/// [`recording`] with the outputs' bandwidths ([`BandwidthFilter`]).
+pub fn recording_filtered(
+    cfg: SimConfig,
+    bands: &[Bandwidth],
+) -> Result<crate::recording::Recording> {
     let mut sink = RecordingSink::new(cfg.samples as usize, cfg.thermal.is_some());
+    let mut filter = BandwidthFilter::new(bands, cfg.rate_hz);
     let mut sim = Simulator::new(cfg)?;
     let mut chunk = Chunk::default();
     while sim.next_chunk(&mut chunk) > 0 {
+        filter.apply(&mut chunk);
         sink.push(&chunk);
     }
     Ok(sink.finish())

@@ -287,6 +287,12 @@ pub struct AxisReport {
     /// RMS over sensors and τ of ln(measured / fitted) single-sensor deviation: how well the four-term model
     /// describes these sensors (not used by the predictions).
     pub model_misfit: f64,
+    /// The same with each sensor's single-pole bandwidth fitted too (`noisefit::fit_band_limited`; equal to
+    /// `model_misfit` where no sensor shows one).
+    pub model_misfit_band_limited: f64,
+    /// The typical sensor's fitted bandwidth (single-pole cut-off, Hz) when its curve shows one, else `None`: part
+    /// of the baseline noise model, not an effect.
+    pub bandwidth_hz: Option<f64>,
     /// Effects kept for this axis.
     pub effects: Vec<String>,
 }
@@ -562,13 +568,26 @@ fn analyse_axis(
             }
         })
         .collect();
-    let typical = noisefit::fit(&typical_pts);
+    // The typical sensor's baseline noise model: the four terms with its single-pole bandwidth when the curve
+    // shows one (`noisefit::fit_band_limited`).
+    let (typical, bandwidth) = noisefit::fit_band_limited(&typical_pts, tau0);
     let typ_terms = terms_of(&typical);
-    let model_misfit = rms(pts_first.iter().zip(&singles).flat_map(|(p, f)| {
-        p.iter()
-            .filter(|q| q.dev > 0.0)
-            .map(move |q| (q.dev / f.avar(q.tau_s).max(1e-300).sqrt()).ln())
-    }));
+    let misfit_of = |fits: &[(NoiseFit, Option<noisefit::LowPass>)]| {
+        rms(pts_first.iter().zip(fits).flat_map(|(p, (f, lp))| {
+            p.iter().filter(|q| q.dev > 0.0).map(move |q| {
+                let cut =
+                    f.white.powi(2) / q.tau_s * (1.0 - lp.map_or(1.0, |l| l.white_factor(q.tau_s)));
+                (q.dev / (f.avar(q.tau_s) - cut).max(1e-300).sqrt()).ln()
+            })
+        }))
+    };
+    let four: Vec<(NoiseFit, Option<noisefit::LowPass>)> =
+        singles.iter().map(|f| (*f, None)).collect();
+    let banded: Vec<(NoiseFit, Option<noisefit::LowPass>)> = pts_first
+        .iter()
+        .map(|p| noisefit::fit_band_limited(p, tau0))
+        .collect();
+    let model_misfit = [misfit_of(&four), misfit_of(&banded)];
     let wts = weights(opts.weights, &singles);
 
     let mb = opts.min_blocks;
@@ -638,6 +657,7 @@ fn analyse_axis(
         chosen,
         wts,
         typical,
+        bandwidth,
         typ_terms,
         model_misfit,
         gave_up,
@@ -847,7 +867,9 @@ fn report_axis(
         taus,
         independence,
         typical: st.typical,
-        model_misfit: st.model_misfit,
+        model_misfit: st.model_misfit[0],
+        model_misfit_band_limited: st.model_misfit[1],
+        bandwidth_hz: st.bandwidth.map(|l| l.cutoff_hz),
         effects,
     });
 }

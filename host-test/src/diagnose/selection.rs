@@ -63,8 +63,11 @@ pub(super) struct AxisState {
     pub(super) chosen: Vec<usize>,
     pub(super) wts: Vec<f64>,
     pub(super) typical: NoiseFit,
+    /// The typical sensor's single-pole bandwidth, when fitted.
+    pub(super) bandwidth: Option<noisefit::LowPass>,
     pub(super) typ_terms: Terms,
-    pub(super) model_misfit: f64,
+    /// RMS ln misfit of the sensors' four-term fits, and with their bandwidths.
+    pub(super) model_misfit: [f64; 2],
     /// The effects selected removed less than [`unexplained::NAME_SHARE`] of the held-out excess and were dropped.
     pub(super) gave_up: bool,
 }

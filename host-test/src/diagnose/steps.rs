@@ -7,7 +7,9 @@
 //! sensor's (median over sensors of their `d`'s overlapping AVAR, corrected to a mean) and the sensor's own robust
 //! estimate (median of its `Δ²`, which a single step moves little), so a noisier sensor is not read as stepping.
 //! The largest `|Δ|/√(2σ²_A)` over windows and times is compared with a Bonferroni threshold over the sensors and
-//! the roughly `n_blocks/L` independent windows at each `L`; a step found is reported with its time and size and
+//! the roughly `n_blocks/L` independent windows at each `L` — a Student-t quantile at the degrees of freedom the
+//! scale was estimated from (the median over the sensors of `n_blocks/L − 1` differences each), so that the few
+//! long windows of a short record do not make a step of the sensors' own low-frequency noise; a step found is reported with its time and size and
 //! removed from the sensor's series before the rest of the diagnosis (spec: `docs/diagnose.md`).
 
 use super::singles::median_to_mean;
@@ -77,6 +79,19 @@ fn z_two_sided(p: f64) -> f64 {
         .unwrap_or(f64::INFINITY)
 }
 
+/// Two-sided Student-t quantile at `nu` degrees of freedom for probability `p` in the tails (the normal one for
+/// `nu` > 1e6; infinite if it cannot be computed).
+fn t_two_sided(p: f64, nu: f64) -> f64 {
+    if nu > 1e6 {
+        return z_two_sided(p);
+    }
+    statrs::distribution::StudentsT::new(0.0, 1.0, nu.max(1.0))
+        .map(|t| -t.inverse_cdf((p / 2.0).max(1e-300)))
+        .ok()
+        .filter(|q| q.is_finite())
+        .unwrap_or(f64::INFINITY)
+}
+
 /// The bias steps of one axis's sensors (`series`, all of equal length), at false-alarm probability `p_false` for
 /// the whole axis. At most one step per sensor (the largest); none with fewer than four sensors.
 pub fn find(series: &[&[f64]], p_false: f64) -> Vec<Step> {
@@ -104,7 +119,13 @@ pub fn find(series: &[&[f64]], p_false: f64) -> Vec<Step> {
         .take_while(|&l| 8 * l <= nb)
         .collect();
     let tests: f64 = windows.iter().map(|&l| nb as f64 / l as f64).sum::<f64>() * ns as f64;
-    let threshold = z_two_sided(p_false / tests.max(1.0));
+    let p_test = p_false / tests.max(1.0);
+    // The normal threshold is the floor; at a window L the scale itself is estimated, from about ν = nb/L − 1
+    // Allan differences per sensor, so the score is Student-t distributed there and the window's threshold is the
+    // t quantile at the scale's degrees of freedom (≈ the normal one for long records, larger at the few blocks of
+    // a short record's long windows).
+    let threshold = z_two_sided(p_test);
+    let mut best_thr: Vec<f64> = vec![threshold; ns];
     let mut best: Vec<Option<(f64, usize, usize, f64)>> = vec![None; ns];
     for &l in &windows {
         let diffs: Vec<Vec<f64>> = prefix.iter().map(|p| differences(p, l)).collect();
@@ -115,6 +136,9 @@ pub fn find(series: &[&[f64]], p_false: f64) -> Vec<Step> {
         // The median of ns estimates of about nb/L − 1 degrees of freedom, corrected to a mean.
         let nu = (nb as f64 / l as f64 - 1.0).max(1.0);
         let typical = median(&avar) * median_to_mean(nu);
+        // The scale is the typical sensor's (the median of ns estimates: ≈ 2/π of their ns·ν degrees of freedom).
+        let nu_scale = nu * ns as f64 * std::f64::consts::FRAC_2_PI;
+        let thr_l = t_two_sided(p_test, nu_scale).max(threshold);
         for (i, x) in diffs.iter().enumerate() {
             let sq: Vec<f64> = x.iter().map(|v| v * v).collect();
             // Median of Δ² over k: 0.4549·Var Δ for a normal Δ.
@@ -129,8 +153,10 @@ pub fn find(series: &[&[f64]], p_false: f64) -> Vec<Step> {
                 .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
             {
                 let z = v.abs() / sd;
-                if best[i].is_none_or(|bst| z > bst.0) {
+                // Ranked by the score relative to its window's threshold.
+                if best[i].is_none_or(|bst| z / thr_l > bst.0 / best_thr[i]) {
                     best[i] = Some((z, k + l, l, *v));
+                    best_thr[i] = thr_l;
                 }
             }
         }
@@ -139,12 +165,13 @@ pub fn find(series: &[&[f64]], p_false: f64) -> Vec<Step> {
         .enumerate()
         .filter_map(|(i, b0)| {
             let (z, k, l, size) = (*b0)?;
-            (z > threshold).then_some(Step {
+            let thr = best_thr[i];
+            (z > thr).then_some(Step {
                 sensor: i,
                 at: k * b,
                 size,
                 z,
-                threshold,
+                threshold: thr,
                 window: l * b,
             })
         })

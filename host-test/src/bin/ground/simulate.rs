@@ -209,11 +209,12 @@ pub fn run(a: Args) -> Result<()> {
         cfg.accel_g = xyz(g, "--accel-g")?;
     }
     a.effects.apply(&mut cfg)?;
+    let bands = a.effects.bandwidths()?;
     cfg.board_seed = a.board_seed;
     let samples = cfg.samples;
     let pb = bar(samples, "samples");
     let t0 = std::time::Instant::now();
-    simcli::write(cfg, &a.out, |n| pb.set_position(n))?;
+    simcli::write_filtered(cfg, &bands, &a.out, |n| pb.set_position(n))?;
     pb.finish_and_clear();
     let size = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
     println!(
