@@ -540,6 +540,64 @@ fn weights(rule: WeightRule, singles: &[NoiseFit]) -> Vec<f64> {
     }
 }
 
+/// The typical sensor of the first half (per-τ median of the sensors' deviations) and its baseline noise model:
+/// the four terms with its single-pole bandwidth when the curve shows one (`noisefit::fit_band_limited`); and the
+/// sensors' RMS misfit to their own four-term and band-limited fits.
+fn typical_sensor(
+    pts_first: &[Vec<AnalysisPoint>],
+    singles: &[NoiseFit],
+    tau0: f64,
+) -> (NoiseFit, Option<noisefit::LowPass>, Terms, [f64; 2]) {
+    let typical_pts: Vec<AnalysisPoint> = (0..pts_first.iter().map(Vec::len).min().unwrap_or(0))
+        .map(|k| {
+            let devs: Vec<f64> = pts_first.iter().map(|p| p[k].dev).collect();
+            AnalysisPoint {
+                dev: median(&devs),
+                ..pts_first[0][k]
+            }
+        })
+        .collect();
+    let (typical, bandwidth) = noisefit::fit_band_limited(&typical_pts, tau0);
+    let typ_terms = terms_of(&typical);
+    let misfit_of = |fits: &[(NoiseFit, Option<noisefit::LowPass>)]| {
+        rms(pts_first.iter().zip(fits).flat_map(|(p, (f, lp))| {
+            p.iter().filter(|q| q.dev > 0.0).map(move |q| {
+                let cut =
+                    f.white.powi(2) / q.tau_s * (1.0 - lp.map_or(1.0, |l| l.white_factor(q.tau_s)));
+                (q.dev / (f.avar(q.tau_s) - cut).max(1e-300).sqrt()).ln()
+            })
+        }))
+    };
+    let four: Vec<(NoiseFit, Option<noisefit::LowPass>)> =
+        singles.iter().map(|f| (*f, None)).collect();
+    let banded: Vec<(NoiseFit, Option<noisefit::LowPass>)> = pts_first
+        .iter()
+        .map(|p| noisefit::fit_band_limited(p, tau0))
+        .collect();
+    let model_misfit = [misfit_of(&four), misfit_of(&banded)];
+    (typical, bandwidth, typ_terms, model_misfit)
+}
+
+/// Adds what is named on one sensor's own evidence to `chosen`: a sensor's own drift, confirmed on the held-out
+/// half, and a sensor's own line, found on the first half and confirmed at its period on the held-out half.
+fn name_per_sensor(cands: &[Candidate], chosen: &mut Vec<usize>, hh: &Half, opts: &Options) {
+    if let Some(c) = cands.iter().position(|c| c.kind == "sensor_drift")
+        && !chosen.contains(&c)
+        && cands[c].cross.iter().any(|x| match x {
+            Cross::Own { sensor, .. } => confirmed(hh, *sensor, opts),
+            _ => false,
+        })
+    {
+        chosen.push(c);
+    }
+    if let Some(c) = cands.iter().position(|c| {
+        c.kind == "periodic" && c.cross.iter().any(|x| matches!(x, Cross::OwnSine { .. }))
+    }) && !chosen.contains(&c)
+    {
+        chosen.push(c);
+    }
+}
+
 /// Phase 1 of an axis: single sensors and the typical sensor, the three halves measured (first, held-out, whole),
 /// the candidates fitted on the first half and selected on the held-out one.
 fn analyse_axis(
@@ -559,35 +617,7 @@ fn analyse_axis(
     let pts_held: Vec<Vec<AnalysisPoint>> = second.iter().map(|s| octave(an, s, tau0)).collect();
     let pts_whole: Vec<Vec<AnalysisPoint>> = w.series.iter().map(|s| octave(an, s, tau0)).collect();
     let singles: Vec<NoiseFit> = pts_first.iter().map(|p| noisefit::fit(p)).collect();
-    let typical_pts: Vec<AnalysisPoint> = (0..pts_first.iter().map(Vec::len).min().unwrap_or(0))
-        .map(|k| {
-            let devs: Vec<f64> = pts_first.iter().map(|p| p[k].dev).collect();
-            AnalysisPoint {
-                dev: median(&devs),
-                ..pts_first[0][k]
-            }
-        })
-        .collect();
-    // The typical sensor's baseline noise model: the four terms with its single-pole bandwidth when the curve
-    // shows one (`noisefit::fit_band_limited`).
-    let (typical, bandwidth) = noisefit::fit_band_limited(&typical_pts, tau0);
-    let typ_terms = terms_of(&typical);
-    let misfit_of = |fits: &[(NoiseFit, Option<noisefit::LowPass>)]| {
-        rms(pts_first.iter().zip(fits).flat_map(|(p, (f, lp))| {
-            p.iter().filter(|q| q.dev > 0.0).map(move |q| {
-                let cut =
-                    f.white.powi(2) / q.tau_s * (1.0 - lp.map_or(1.0, |l| l.white_factor(q.tau_s)));
-                (q.dev / (f.avar(q.tau_s) - cut).max(1e-300).sqrt()).ln()
-            })
-        }))
-    };
-    let four: Vec<(NoiseFit, Option<noisefit::LowPass>)> =
-        singles.iter().map(|f| (*f, None)).collect();
-    let banded: Vec<(NoiseFit, Option<noisefit::LowPass>)> = pts_first
-        .iter()
-        .map(|p| noisefit::fit_band_limited(p, tau0))
-        .collect();
-    let model_misfit = [misfit_of(&four), misfit_of(&banded)];
+    let (typical, bandwidth, typ_terms, model_misfit) = typical_sensor(&pts_first, &singles, tau0);
     let wts = weights(opts.weights, &singles);
 
     let mb = opts.min_blocks;
@@ -631,23 +661,7 @@ fn analyse_axis(
     if gave_up {
         chosen.clear();
     }
-    // A sensor's own drift is named on per-sensor evidence, confirmed on the held-out half.
-    if let Some(c) = cands.iter().position(|c| c.kind == "sensor_drift")
-        && !chosen.contains(&c)
-        && cands[c].cross.iter().any(|x| match x {
-            Cross::Own { sensor, .. } => confirmed(&hh, *sensor, opts),
-            _ => false,
-        })
-    {
-        chosen.push(c);
-    }
-    // So is a sensor's own line, found on the first half and confirmed at its period on the held-out half.
-    if let Some(c) = cands.iter().position(|c| {
-        c.kind == "periodic" && c.cross.iter().any(|x| matches!(x, Cross::OwnSine { .. }))
-    }) && !chosen.contains(&c)
-    {
-        chosen.push(c);
-    }
+    name_per_sensor(&cands, &mut chosen, &hh, opts);
     AxisState {
         hf,
         hw,

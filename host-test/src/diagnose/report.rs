@@ -1,6 +1,6 @@
 //! Human-readable report and plots of a diagnosis.
 
-use super::Report;
+use super::{AxisReport, Report};
 use crate::plot::{self, Curve, Panel, Style};
 use std::fmt::Write as _;
 use std::path::Path;
@@ -43,6 +43,14 @@ pub fn write(r: &Report, dir: &Path, source: &str) -> Result<String, WriteError>
 /// The text report.
 pub fn text(r: &Report, source: &str) -> String {
     let mut s = String::new();
+    summary(&mut s, r, source);
+    effects(&mut s, r);
+    axes(&mut s, r);
+    s
+}
+
+/// The record, the method and the gap before and after.
+fn summary(s: &mut String, r: &Report, source: &str) {
     let _ = writeln!(s, "Sim-to-real diagnosis of {source}");
     let _ = writeln!(
         s,
@@ -75,6 +83,10 @@ pub fn text(r: &Report, source: &str) -> String {
         );
     }
     let _ = writeln!(s);
+}
+
+/// The effects chosen, with their parameters.
+fn effects(s: &mut String, r: &Report) {
     if r.effects.is_empty() {
         let _ = writeln!(s, "Effects: none (no significant gap).");
     } else {
@@ -115,6 +127,10 @@ pub fn text(r: &Report, source: &str) -> String {
             }
         }
     }
+}
+
+/// The per-axis table, and each axis's regions and τ rows.
+fn axes(s: &mut String, r: &Report) {
     let _ = writeln!(s);
     let _ = writeln!(
         s,
@@ -125,71 +141,75 @@ pub fn text(r: &Report, source: &str) -> String {
         "  axis  N  expected  RMS-noise gain          bias-stability gain     weighting  gap before→after (held-out)  effects"
     );
     for a in &r.axes {
-        let _ = writeln!(
-            s,
-            "  {:<4} {:>2}  {:>7.2}   {:5.2} [{:5.2}, {:5.2}]    {:5.2} [{:5.2}, {:5.2}]    {:6.3}     {:.3} → {:.3}                 {}",
-            a.axis,
-            a.sensors,
-            a.expected_gain,
-            a.rms_gain.value,
-            a.rms_gain.ci_lo,
-            a.rms_gain.ci_hi,
-            a.bias_stability_gain.value,
-            a.bias_stability_gain.ci_lo,
-            a.bias_stability_gain.ci_hi,
-            a.weighting_recovers,
-            a.heldout_gap[0],
-            a.heldout_gap[1],
-            if a.effects.is_empty() {
-                "-".into()
-            } else {
-                a.effects.join(", ")
-            }
-        );
-        for reg in &a.regions {
-            let _ = writeln!(
-                s,
-                "        {:<12} tau {:>9.3} … {:>9.3} s: mean gap {:+.3} → {:+.3}, significant points {}/{} → {}/{}",
-                reg.region,
-                reg.tau_s[0],
-                reg.tau_s[1],
-                reg.gap_before,
-                reg.gap_after,
-                reg.significant_before,
-                reg.points,
-                reg.significant_after,
-                reg.points
-            );
+        axis(s, a);
+    }
+}
+
+/// One axis: its row, its τ regions, its τ rows and its independence test.
+fn axis(s: &mut String, a: &AxisReport) {
+    let _ = writeln!(
+        s,
+        "  {:<4} {:>2}  {:>7.2}   {:5.2} [{:5.2}, {:5.2}]    {:5.2} [{:5.2}, {:5.2}]    {:6.3}     {:.3} → {:.3}                 {}",
+        a.axis,
+        a.sensors,
+        a.expected_gain,
+        a.rms_gain.value,
+        a.rms_gain.ci_lo,
+        a.rms_gain.ci_hi,
+        a.bias_stability_gain.value,
+        a.bias_stability_gain.ci_lo,
+        a.bias_stability_gain.ci_hi,
+        a.weighting_recovers,
+        a.heldout_gap[0],
+        a.heldout_gap[1],
+        if a.effects.is_empty() {
+            "-".into()
+        } else {
+            a.effects.join(", ")
         }
+    );
+    for reg in &a.regions {
         let _ = writeln!(
             s,
-            "        tau s       blocks  EDF      measured dev  [68 %]                 P0 / model dev          z P0 / model  cross corr (z)"
-        );
-        for t in &a.taus {
-            let _ = writeln!(
-                s,
-                "        {:>10.3} {:>7} {:>8.1}  {:>10.3e} [{:.3e}, {:.3e}]  {:.3e} / {:.3e}  {:+6.1} / {:+5.1}  {:+.4} ({:+.1})",
-                t.tau_s,
-                t.blocks,
-                t.edf,
-                t.dev,
-                t.dev_lo,
-                t.dev_hi,
-                t.predicted_before,
-                t.predicted_after,
-                t.z_before,
-                t.z_after,
-                t.cross_correlation,
-                t.cross_z
-            );
-        }
-        let _ = writeln!(
-            s,
-            "        independence (held-out cross covariance): chi2 {:.1} on {} points, p = {:.2e}",
-            a.independence.chi2, a.independence.points, a.independence.p_value
+            "        {:<12} tau {:>9.3} … {:>9.3} s: mean gap {:+.3} → {:+.3}, significant points {}/{} → {}/{}",
+            reg.region,
+            reg.tau_s[0],
+            reg.tau_s[1],
+            reg.gap_before,
+            reg.gap_after,
+            reg.significant_before,
+            reg.points,
+            reg.significant_after,
+            reg.points
         );
     }
-    s
+    let _ = writeln!(
+        s,
+        "        tau s       blocks  EDF      measured dev  [68 %]                 P0 / model dev          z P0 / model  cross corr (z)"
+    );
+    for t in &a.taus {
+        let _ = writeln!(
+            s,
+            "        {:>10.3} {:>7} {:>8.1}  {:>10.3e} [{:.3e}, {:.3e}]  {:.3e} / {:.3e}  {:+6.1} / {:+5.1}  {:+.4} ({:+.1})",
+            t.tau_s,
+            t.blocks,
+            t.edf,
+            t.dev,
+            t.dev_lo,
+            t.dev_hi,
+            t.predicted_before,
+            t.predicted_after,
+            t.z_before,
+            t.z_after,
+            t.cross_correlation,
+            t.cross_z
+        );
+    }
+    let _ = writeln!(
+        s,
+        "        independence (held-out cross covariance): chi2 {:.1} on {} points, p = {:.2e}",
+        a.independence.chi2, a.independence.points, a.independence.p_value
+    );
 }
 
 /// Measured vs predicted cluster deviation before and after, per axis (held-out half).
