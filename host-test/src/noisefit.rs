@@ -109,9 +109,10 @@ pub fn nnls<const K: usize>(rows: &[([f64; K], f64, f64)]) -> Option<[f64; K]> {
     best.map(|(_, c)| c)
 }
 
-/// Fits the four terms to Allan-variance points (points without a finite deviation are skipped).
-pub fn fit(points: &[AnalysisPoint]) -> NoiseFit {
-    let rows: Vec<([f64; 4], f64, f64)> = points
+/// The points with a finite deviation as (τ, Allan variance y, weight): the weight is the inverse variance of y,
+/// `ν/(2y²)` at the point's EDF ν (its block count where it has none).
+fn weighted_rows(points: &[AnalysisPoint]) -> impl Iterator<Item = (f64, f64, f64)> + '_ {
+    points
         .iter()
         .filter(|p| p.dev.is_finite() && p.dev > 0.0 && p.tau_s > 0.0)
         .map(|p| {
@@ -120,8 +121,14 @@ pub fn fit(points: &[AnalysisPoint]) -> NoiseFit {
                 .edf
                 .filter(|e| e.is_finite() && *e > 0.0)
                 .unwrap_or(p.n.max(1) as f64);
-            (basis(p.tau_s), y, edf / 2.0 / (y * y))
+            (p.tau_s, y, edf / 2.0 / (y * y))
         })
+}
+
+/// Fits the four terms to Allan-variance points (points without a finite deviation are skipped).
+pub fn fit(points: &[AnalysisPoint]) -> NoiseFit {
+    let rows: Vec<([f64; 4], f64, f64)> = weighted_rows(points)
+        .map(|(tau, y, w)| (basis(tau), y, w))
         .collect();
     let Some(c) = nnls(&rows) else {
         return NoiseFit::default();
@@ -202,18 +209,7 @@ pub fn fit_band_limited(points: &[AnalysisPoint], tau0_s: f64) -> (NoiseFit, Opt
     if !(tau0_s.is_finite() && tau0_s > 0.0) {
         return (plain, None);
     }
-    let rows: Vec<(f64, f64, f64)> = points
-        .iter()
-        .filter(|p| p.dev.is_finite() && p.dev > 0.0 && p.tau_s > 0.0)
-        .map(|p| {
-            let y = p.dev * p.dev;
-            let edf = p
-                .edf
-                .filter(|e| e.is_finite() && *e > 0.0)
-                .unwrap_or(p.n.max(1) as f64);
-            (p.tau_s, y, edf / 2.0 / (y * y))
-        })
-        .collect();
+    let rows: Vec<(f64, f64, f64)> = weighted_rows(points).collect();
     let solve_with = |lp: Option<LowPass>| -> Option<(f64, [f64; 4])> {
         let r: Vec<([f64; 4], f64, f64)> = rows
             .iter()
