@@ -66,13 +66,16 @@ pub fn run(a: Args) -> Result<()> {
             .iter()
             .max_by(|x, y| (x.end_s - x.start_s).total_cmp(&(y.end_s - y.start_s)))
             .context("no static interval found")?;
-        pb.println(format!(
-            "longest static interval: {:.1} … {:.1} s ({:.1} s of {} poses)",
-            p.start_s,
-            p.end_s,
-            p.end_s - p.start_s,
-            poses.len()
-        ));
+        // Through `suspend`, as above: `pb.println` prints nothing when stderr is not a terminal.
+        pb.suspend(|| {
+            println!(
+                "longest static interval: {:.3} … {:.3} s ({:.1} s of {} poses)",
+                p.start_s,
+                p.end_s,
+                p.end_s - p.start_s,
+                poses.len()
+            )
+        });
         // One frame interval past the end keeps the last frame.
         loaded.recording = loaded.recording.window(p.start_s, p.end_s + 1e-3);
     }
