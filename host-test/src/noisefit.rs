@@ -191,6 +191,21 @@ impl LowPass {
         let pm = phi.powf(m);
         (1.0 - phi * (3.0 - 4.0 * pm + pm * pm) / (m * (1.0 - phi * phi))).clamp(0.0, 1.0)
     }
+
+    /// One sample through the filter of pole `phi`: `y = φ·state + (1 − φ)·x`, the state then `y`; the first
+    /// sample (no state yet) passes unchanged, as if the filter had settled on it.
+    pub fn step(phi: f64, state: &mut Option<f64>, x: f64) -> f64 {
+        let y = state.map_or(x, |prev| phi * prev + (1.0 - phi) * x);
+        *state = Some(y);
+        y
+    }
+
+    /// `v` through the filter, in place ([`Self::step`] from a settled start).
+    pub fn filter(&self, v: &mut [f64]) {
+        let (phi, mut state) = (self.pole(), None);
+        v.iter_mut()
+            .for_each(|x| *x = Self::step(phi, &mut state, *x));
+    }
 }
 
 /// Fewest χ² units (the fit's weighted cost) a low-pass response must gain over the four terms alone to be kept: a

@@ -614,13 +614,7 @@ impl BandwidthFilter {
                 continue;
             }
             for row in &mut chunk.phys[..len] {
-                let x = row[*g][*a];
-                let y = match *state {
-                    Some(prev) => *phi * prev + (1.0 - *phi) * x,
-                    None => x,
-                };
-                *state = Some(y);
-                row[*g][*a] = y;
+                row[*g][*a] = crate::noisefit::LowPass::step(*phi, state, row[*g][*a]);
             }
         }
     }

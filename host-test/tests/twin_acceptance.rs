@@ -11,7 +11,7 @@ use host_test::diagnose::{Options, diagnose};
 use host_test::sim::{
     Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, SimConfig,
 };
-use host_test::simcli::recording;
+use host_test::simcli::{Bandwidth, recording_filtered};
 use host_test::twin::{self, ClusterModel, CompareOptions, PlayOptions};
 
 /// B against a model fitted on A: both records' estimation errors count.
@@ -31,11 +31,25 @@ fn close_the_loop(cfg: SimConfig, effect_axes: &[&str]) -> Vec<String> {
 
 /// [`close_the_loop`], returning the model too.
 fn close_the_loop_model(cfg: SimConfig, effect_axes: &[&str]) -> (Vec<String>, ClusterModel) {
+    close_the_loop_filtered(cfg, &[], effect_axes)
+}
+
+/// [`close_the_loop_model`] on records whose outputs pass `bands` (`ground simulate --bandwidth-hz`). With bands,
+/// the twin that must miss `effect_axes` is the model without its bandwidths (a sensor's bandwidth is part of the
+/// noise model, which the twin without effects keeps).
+fn close_the_loop_filtered(
+    cfg: SimConfig,
+    bands: &[Bandwidth],
+    effect_axes: &[&str],
+) -> (Vec<String>, ClusterModel) {
     let board = Some(cfg.seed);
-    let a = recording(SimConfig {
-        board_seed: board,
-        ..cfg.clone()
-    })
+    let a = recording_filtered(
+        SimConfig {
+            board_seed: board,
+            ..cfg.clone()
+        },
+        bands,
+    )
     .unwrap();
     let report = diagnose(&a, &Options::default()).unwrap();
     let kinds: Vec<String> = report.effects.iter().map(|e| e.kind.clone()).collect();
@@ -43,11 +57,14 @@ fn close_the_loop_model(cfg: SimConfig, effect_axes: &[&str]) -> (Vec<String>, C
     let model = ClusterModel::from_toml(&model.to_toml().unwrap(), "A.toml").unwrap();
     drop(a);
     let twin_model = model.clone();
-    let b = recording(SimConfig {
-        seed: cfg.seed + 500_000,
-        board_seed: board,
-        ..cfg
-    })
+    let b = recording_filtered(
+        SimConfig {
+            seed: cfg.seed + 500_000,
+            board_seed: board,
+            ..cfg
+        },
+        bands,
+    )
     .unwrap();
     let with = twin::play(
         &model,
@@ -65,17 +82,25 @@ fn close_the_loop_model(cfg: SimConfig, effect_axes: &[&str]) -> (Vec<String>, C
         c.summary()
     );
     drop(with);
+    let mut plain_model = model;
+    plain_model
+        .axes
+        .iter_mut()
+        .for_each(|a| a.bandwidth_hz = None);
     let plain = twin::play(
-        &model,
+        &plain_model,
         &PlayOptions {
             seed: 11,
-            without_effects: true,
+            without_effects: bands.is_empty(),
             ..Default::default()
         },
     )
     .unwrap();
     let c0 = twin::compare(&b, &plain, &FITTED_ON_A).unwrap();
-    eprintln!("without effects:\n{}", c0.summary());
+    eprintln!(
+        "without effects (with bands: without the bandwidth):\n{}",
+        c0.summary()
+    );
     for ax in effect_axes {
         assert!(
             c0.significant_axes.iter().any(|s| s == ax),
@@ -166,6 +191,26 @@ fn axis<'m>(model: &'m ClusterModel, name: &str) -> &'m twin::AxisModel {
 /// A sinusoid's period within 1 % and amplitude within 20 % of what was injected.
 fn same_sinusoid(s: &twin::Sinusoid, period: f64, amp: f64) {
     same_period_and_amplitude(s.period_s, s.amplitude, period, amp);
+}
+
+/// Every group's gyros through a single pole at 0.8 Hz (`tests/diagnose_bandwidth.rs`): the twin plays the fitted
+/// cut-off and reproduces B; without it, it misses every gyro axis (its white noise is the filter's input).
+#[test]
+fn band_limited_gyros() {
+    let cutoff_hz = 0.8;
+    let bands = [Bandwidth {
+        groups: None,
+        axes: Axis::ALL[..3].to_vec(),
+        cutoff_hz,
+    }];
+    let (_, model) = close_the_loop_filtered(config(BASE + 11), &bands, &["gx", "gy", "gz"]);
+    for a in &model.axes {
+        match (a.axis.starts_with('g'), a.bandwidth_hz) {
+            (true, Some(f)) => assert!((f / cutoff_hz - 1.0).abs() < 0.05, "{}: {f} Hz", a.axis),
+            (false, None) => {}
+            (_, f) => panic!("{}: bandwidth {f:?}", a.axis),
+        }
+    }
 }
 
 #[test]

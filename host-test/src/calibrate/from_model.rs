@@ -162,15 +162,17 @@ fn add_thermal(
     Ok((count, Some(t_m)))
 }
 
-/// The model's Allan covariance of one axis's sensors at τ (module docs), in the order of `axis.sensors`.
-pub fn model_covariance(axis: &AxisModel, tau_s: f64) -> DMatrix<f64> {
+/// The model's Allan covariance of one axis's sensors at τ (module docs), in the order of `axis.sensors`, at the
+/// record's `rate_hz` (through the axis's bandwidth, when it has one).
+pub fn model_covariance(axis: &AxisModel, tau_s: f64, rate_hz: f64) -> DMatrix<f64> {
     let n = axis.sensors.len();
+    let band = axis.low_pass(rate_hz);
     let mut c = DMatrix::zeros(n, n);
     for (i, s) in axis.sensors.iter().enumerate() {
-        c[(i, i)] = s.independent.avar(tau_s);
+        c[(i, i)] = s.independent.avar_band_limited(tau_s, band.as_ref());
     }
     for p in &axis.shared {
-        let v = p.terms.avar(tau_s);
+        let v = p.terms.avar_band_limited(tau_s, band.as_ref());
         let members: Vec<usize> = (0..n)
             .filter(|&i| p.groups.contains(&axis.sensors[i].group))
             .collect();
@@ -206,7 +208,10 @@ fn axis_weights(
             "no octave τ of the region lies within a quarter of the record the model was fitted to",
         ));
     }
-    let covs: Vec<DMatrix<f64>> = taus.iter().map(|&t| model_covariance(axis, t)).collect();
+    let covs: Vec<DMatrix<f64>> = taus
+        .iter()
+        .map(|&t| model_covariance(axis, t, rate))
+        .collect();
     let w = solve(&covs, MODEL_RIDGE, opts.allow_negative)?;
     let aw = AxisWeights::evaluated(&w, &covs, taus);
     Ok((axis.sensors.iter().map(|s| s.group).collect(), aw))
@@ -275,6 +280,7 @@ mod tests {
                         })
                         .collect(),
                     shared: Vec::new(),
+                    bandwidth_hz: None,
                 })
                 .collect(),
         }

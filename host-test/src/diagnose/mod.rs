@@ -362,6 +362,8 @@ pub struct AxisFit {
     pub level: Option<Vec<f64>>,
     /// The chosen effects' cross terms, with the kind of the effect each belongs to.
     pub cross: Vec<(&'static str, Cross)>,
+    /// The sensors' low-pass response, when the band-limited noise model fitted one (the report's `bandwidth_hz`).
+    pub bandwidth: Option<noisefit::LowPass>,
 }
 
 /// Curves of one axis for plotting (held-out half).
@@ -860,6 +862,7 @@ fn report_axis(
             .iter()
             .flat_map(|c| c.cross.iter().map(move |x| (c.kind, x.clone())))
             .collect(),
+        bandwidth: st.bandwidth,
     });
     let mut effects: Vec<String> = refs.iter().map(|c| c.kind.to_string()).collect();
     if sig[1] {

@@ -23,6 +23,7 @@ use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, Ta
 use crate::diagnose::median_to_mean;
 use crate::diagnose::model::{Cross, Terms};
 use crate::diagnose::{AxisFit, Report};
+use crate::noisefit::LowPass;
 use crate::recording::Recording;
 use crate::stats::median;
 
@@ -138,7 +139,8 @@ fn fit_axis(
             )
         })
         .collect();
-    let typical = fit_terms(&typical_points(&points));
+    let band = af.bandwidth.as_ref();
+    let typical = fit_terms(&typical_points(&points), band);
     let own = own_terms(af, &typical, ns);
     let mut shared = shared_processes(af, &cleaned, &own, tau0, an);
     shared.extend(det.shared_sines.into_iter().map(|p| (p, Vec::new())));
@@ -165,6 +167,7 @@ fn fit_axis(
         effects: af.effects.iter().map(|k| (*k).to_string()).collect(),
         sensors,
         shared: shared.into_iter().map(|(p, _)| p).collect(),
+        bandwidth_hz: band.map(|l| l.cutoff_hz),
     })
 }
 
@@ -359,7 +362,7 @@ fn shared_processes(
                     &AllanOptions::default(),
                 );
                 let own_of: Vec<&NoiseTerms> = members.iter().map(|&i| &own[i]).collect();
-                fit_shared(&pts, &own_of)
+                fit_shared(&pts, &own_of, af.bandwidth.as_ref())
             } else {
                 NoiseTerms::from_avar_coefficients(diag.0)
             };
@@ -385,7 +388,7 @@ fn shared_processes(
 /// EDF of the mean's variance). Fitted on the whole record, so that the twin's cluster matches the record's where
 /// the diagnosis's first-half shares would leave a bias of a few per cent (significant at short τ, where the EDF is
 /// in the tens of thousands).
-fn fit_shared(points: &[AnalysisPoint], own: &[&NoiseTerms]) -> NoiseTerms {
+fn fit_shared(points: &[AnalysisPoint], own: &[&NoiseTerms], band: Option<&LowPass>) -> NoiseTerms {
     let m = own.len() as f64;
     if m < 2.0 {
         return NoiseTerms::default();
@@ -395,10 +398,14 @@ fn fit_shared(points: &[AnalysisPoint], own: &[&NoiseTerms]) -> NoiseTerms {
         .filter(|p| p.dev > 0.0 && p.dev.is_finite())
         .map(|p| {
             let v = p.dev * p.dev;
-            let own_mean = own.iter().map(|o| o.avar(p.tau_s)).sum::<f64>() / m;
+            let own_mean = own
+                .iter()
+                .map(|o| o.avar_band_limited(p.tau_s, band))
+                .sum::<f64>()
+                / m;
             let y = (v - own_mean / m) / (1.0 - 1.0 / m);
             let edf = p.edf.unwrap_or(p.n as f64).max(1.0);
-            (Terms::basis(p.tau_s), y, edf / 2.0 / (v * v))
+            (basis(p.tau_s, band), y, edf / 2.0 / (v * v))
         })
         .collect();
     crate::noisefit::nnls::<5>(&rows)
@@ -424,15 +431,16 @@ fn typical_points(points: &[Vec<AnalysisPoint>]) -> Vec<AnalysisPoint> {
 }
 
 /// The five terms fitted (non-negative least squares on the Allan variance, each point weighted by its EDF over
-/// its squared variance, as `noisefit::fit`) to octave points.
-pub fn fit_terms(points: &[AnalysisPoint]) -> NoiseTerms {
+/// its squared variance, as `noisefit::fit`) to octave points, seen through the sensors' low-pass response `band`
+/// when they have one (the terms are then those before the filter).
+pub fn fit_terms(points: &[AnalysisPoint], band: Option<&LowPass>) -> NoiseTerms {
     let rows: Vec<([f64; 5], f64, f64)> = points
         .iter()
         .filter(|p| p.dev > 0.0 && p.dev.is_finite())
         .map(|p| {
             let y = p.dev * p.dev;
             let edf = p.edf.unwrap_or(p.n as f64).max(1.0);
-            (Terms::basis(p.tau_s), y, edf / 2.0 / (y * y))
+            (basis(p.tau_s, band), y, edf / 2.0 / (y * y))
         })
         .collect();
     crate::noisefit::nnls::<5>(&rows)

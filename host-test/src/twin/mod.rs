@@ -95,7 +95,17 @@ impl NoiseTerms {
 
     /// The Allan variance at `tau_s`.
     pub fn avar(&self, tau_s: f64) -> f64 {
-        let b = crate::diagnose::model::Terms::basis(tau_s);
+        self.avar_band_limited(tau_s, None)
+    }
+
+    /// The Allan variance at `tau_s` of these terms seen through `low_pass` (its factor on the white term,
+    /// [`LowPass::white_factor`](crate::noisefit::LowPass::white_factor); none: [`Self::avar`]).
+    pub fn avar_band_limited(
+        &self,
+        tau_s: f64,
+        low_pass: Option<&crate::noisefit::LowPass>,
+    ) -> f64 {
+        let b = basis(tau_s, low_pass);
         self.avar_coefficients()
             .iter()
             .zip(b)
@@ -120,6 +130,16 @@ impl NoiseTerms {
         .iter()
         .all(|x| x.is_finite() && *x >= 0.0)
     }
+}
+
+/// The Allan-variance basis of the five terms at `tau_s` (`diagnose::model::Terms::basis`), the white term's through
+/// `low_pass` when there is one.
+pub fn basis(tau_s: f64, low_pass: Option<&crate::noisefit::LowPass>) -> [f64; 5] {
+    let mut b = crate::diagnose::model::Terms::basis(tau_s);
+    if let Some(l) = low_pass {
+        b[1] *= l.white_factor(tau_s);
+    }
+    b
 }
 
 /// What was recorded.
@@ -222,12 +242,25 @@ pub struct AxisModel {
     pub sensors: Vec<SensorModel>,
     /// Processes shared by several sensors.
     pub shared: Vec<SharedProcess>,
+    /// The sensors' bandwidth, Hz: every sensor's output passes a single-pole low-pass filter at this cut-off (the
+    /// diagnosis's `bandwidth_hz`, `noisefit::LowPass`), and the white terms above are those before the filter.
+    /// Absent: no filter.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bandwidth_hz: Option<f64>,
 }
 
 impl AxisModel {
     /// Sensor kind and axis index of `self.axis` (`None` for a name that is not `g`/`a` + `x`/`y`/`z`).
     pub fn kind_axis(&self) -> Option<(SensorKind, usize)> {
         parse_axis(&self.axis)
+    }
+
+    /// The axis's bandwidth as the filter at `rate_hz` (`None` without one).
+    pub fn low_pass(&self, rate_hz: f64) -> Option<crate::noisefit::LowPass> {
+        self.bandwidth_hz.map(|f| crate::noisefit::LowPass {
+            cutoff_hz: f,
+            tau0_s: 1.0 / rate_hz,
+        })
     }
 }
 
@@ -368,6 +401,14 @@ impl ClusterModel {
             if a.kind_axis().is_none() {
                 return Err(TwinError::Invalid(format!(
                     "axis \"{}\": expected gx … az",
+                    a.axis
+                )));
+            }
+            if let Some(f) = a.bandwidth_hz
+                && !(f.is_finite() && f > 0.0)
+            {
+                return Err(TwinError::Invalid(format!(
+                    "{}: bandwidth_hz = {f} must be > 0",
                     a.axis
                 )));
             }

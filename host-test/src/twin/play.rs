@@ -179,6 +179,10 @@ pub fn play(model: &ClusterModel, opts: &PlayOptions) -> Result<Recording, TwinE
                     .zip(t)
                     .for_each(|(x, t)| *x += s.thermal_per_c * (t - t_ref));
             }
+            // The sensor's bandwidth is part of its noise model (the √N model's too), not an effect.
+            if let Some(l) = axis.low_pass(rate) {
+                l.filter(&mut data);
+            }
             columns.push(Column {
                 group: s.group,
                 kind,
