@@ -30,6 +30,7 @@ mod periodic;
 mod prediction;
 pub use prediction::{scan_statistic, scan_threshold};
 pub(crate) use singles::median_to_mean;
+pub mod quiet;
 pub mod report;
 mod selection;
 mod sensors;
@@ -337,6 +338,9 @@ pub struct Report {
     pub min_blocks: usize,
     /// False-alarm probability per axis of the significance test.
     pub p_false: f64,
+    /// Shared disturbances ([`quiet`]): transients every sensor saw, which the √N model of stationary noise does
+    /// not describe; the diagnosis includes them (use [`quiet::longest_quiet`] to leave them out).
+    pub disturbances: Vec<quiet::Disturbance>,
     /// Curves for plots: per axis (label), the held-out measured curve and both predictions.
     #[serde(skip)]
     pub curves: Vec<AxisCurves>,
@@ -498,6 +502,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, DiagnoseError
         temperature: temp.is_some(),
         min_blocks: opts.min_blocks,
         p_false: opts.p_false,
+        disturbances: quiet::find(rec, opts.p_false),
         curves,
         fitted,
     })

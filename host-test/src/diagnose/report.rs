@@ -1,6 +1,6 @@
 //! Human-readable report and plots of a diagnosis.
 
-use super::{AxisReport, Report};
+use super::{AxisReport, Report, quiet};
 use crate::plot::{self, Curve, Panel, Style};
 use std::fmt::Write as _;
 use std::path::Path;
@@ -81,6 +81,21 @@ fn summary(s: &mut String, r: &Report, source: &str) {
             "  held-out gap shrinks by {:.0} %",
             100.0 * (1.0 - r.heldout.gap_after / r.heldout.gap_before)
         );
+    }
+    if !r.disturbances.is_empty() {
+        let _ = writeln!(
+            s,
+            "Shared disturbances (the cluster mean's scatter over {}-sample windows, about their line, against the
+             typical window's): transients every sensor saw, included above; not stationary noise.",
+            quiet::WINDOW
+        );
+        for d in &r.disturbances {
+            let _ = writeln!(
+                s,
+                "  {} {}: {:.3} … {:.3} s, variance ×{:.1} (threshold ×{:.2})",
+                d.sensor, d.axis, d.start_s, d.end_s, d.variance_ratio, d.threshold
+            );
+        }
     }
     let _ = writeln!(s);
 }

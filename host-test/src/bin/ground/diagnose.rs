@@ -39,9 +39,13 @@ pub struct Args {
     /// each with its own EDF).
     #[arg(long)]
     min_blocks: Option<usize>,
-    /// MIMU4444 stream: diagnose the longest static interval (found as `calibrate --static` finds poses).
+    /// MIMU4444 stream: diagnose the longest static interval (found as `calibrate --static` finds poses), or its
+    /// longest quiet part when shared disturbances (transients every sensor saw: docs/diagnose.md) lie inside it.
     #[arg(long, conflicts_with = "window")]
     longest_static: bool,
+    /// With --longest-static: keep the whole interval, shared disturbances included.
+    #[arg(long, requires = "longest_static")]
+    keep_disturbances: bool,
     /// Calibration table (.bin) for raw inputs.
     #[arg(long)]
     calib: Option<PathBuf>,
@@ -76,8 +80,36 @@ pub fn run(a: Args) -> Result<()> {
                 poses.len()
             )
         });
-        // One frame interval past the end keeps the last frame.
-        loaded.recording = loaded.recording.window(p.start_s, p.end_s + 1e-3);
+        let p_false = Options::default().p_false;
+        let (quiet, found) =
+            diagnose::quiet::quiet_window(&loaded.recording, p.start_s, p.end_s, p_false);
+        if found.is_empty() || a.keep_disturbances {
+            // One frame interval past the end keeps the last frame.
+            loaded.recording = loaded.recording.window(p.start_s, p.end_s + 1e-3);
+        } else {
+            let (t0, t1) = (
+                quiet.t_s.first().copied().unwrap_or(f64::NAN),
+                quiet.t_s.last().copied().unwrap_or(f64::NAN),
+            );
+            pb.suspend(|| {
+                for d in &found {
+                    println!(
+                        "shared disturbance: {} {} at {:.3} … {:.3} s, variance ×{:.1} (threshold ×{:.2})",
+                        d.sensor,
+                        d.axis,
+                        p.start_s + d.start_s,
+                        p.start_s + d.end_s,
+                        d.variance_ratio,
+                        d.threshold
+                    );
+                }
+                println!(
+                    "diagnosing its longest quiet part: {t0:.3} … {t1:.3} s ({:.1} s; --keep-disturbances for all)",
+                    t1 - t0
+                )
+            });
+            loaded.recording = quiet;
+        }
     }
     pb.set_message("fitting noise models and effects");
     let opts = Options {
