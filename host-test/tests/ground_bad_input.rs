@@ -730,3 +730,42 @@ fn no_static_interval_says_so() {
         &["frames.bin", "no valid MIMU4444 frame"],
     );
 }
+
+/// `ground allan REC | head -0`: the reader is gone before `ground` prints its table. `ground` ends as a process
+/// killed by SIGPIPE would (141), not with a panic (101). (If the table were printed before the pipe closed the
+/// run would end 0; either way no panic: without the hook every run printing to a closed pipe panics.)
+#[test]
+fn a_closed_stdout_is_not_a_panic() {
+    let d = dir("pipe");
+    let rec = d.join("r.csv");
+    let out = ground(&[
+        &"simulate",
+        &"--seconds",
+        &"600",
+        &"--rate",
+        &"10",
+        &"--out",
+        &rec,
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ground"))
+        .args([
+            "allan".as_ref(),
+            rec.as_os_str(),
+            "--out".as_ref(),
+            d.join("a").as_os_str(),
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("running ground");
+    drop(child.stdout.take());
+    let out = child.wait_with_output().expect("waiting for ground");
+    let err = text(&out.stderr);
+    assert!(!err.contains("panicked"), "panic:\n{err}");
+    assert!(
+        matches!(out.status.code(), Some(141 | 0)),
+        "{:?}\n{err}",
+        out.status
+    );
+}

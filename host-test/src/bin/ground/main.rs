@@ -51,7 +51,27 @@ enum Cmd {
     Compare(compare::Args),
 }
 
+/// `ground … | head` closes the pipe before `ground` is done; the next `println!` then fails and panics (Rust ignores
+/// SIGPIPE). Exit quietly instead, with the status of a process ended by SIGPIPE (128 + 13), as `cat` would; every
+/// other panic goes to the default hook.
+fn quiet_on_broken_pipe() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let payload = info.payload();
+        let msg = payload
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| payload.downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if msg.starts_with("failed printing to stdout") && msg.contains("Broken pipe") {
+            std::process::exit(141);
+        }
+        default(info);
+    }));
+}
+
 fn main() -> ExitCode {
+    quiet_on_broken_pipe();
     let cli = Cli::parse();
     let result = match cli.cmd {
         Cmd::Demo(a) => demo::run(a),
