@@ -330,7 +330,14 @@ fn the_twin_of_real_mimu4444_records() {
                 .iter()
                 .max_by(|a, b| (a.end_s - a.start_s).total_cmp(&(b.end_s - b.start_s)))
                 .unwrap();
-            host_test::load::mimu_recording(&m, Some(&table)).window(p.start_s, p.end_s + 1e-3)
+            // As `ground diagnose --longest-static`: the interval's longest part without shared disturbances.
+            host_test::diagnose::quiet::quiet_window(
+                &host_test::load::mimu_recording(&m, Some(&table)),
+                p.start_s,
+                p.end_s,
+                Options::default().p_false,
+            )
+            .0
         })
         .collect();
     let (mut with_total, mut without_total) = (0, 0);
