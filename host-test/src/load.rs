@@ -321,9 +321,16 @@ fn load_csv(path: &Path, cal: Option<&Calibration>) -> Result<Loaded> {
              recordings (FPGA frame log, MIMU4444 stream)",
         ));
     }
-    let (recording, warnings) = Recording::read(path).map_err(|source| LoadError::Csv {
-        path: path.to_path_buf(),
-        source,
+    let (recording, warnings) = Recording::read(path).map_err(|e| match e {
+        // The file could not be read: named once, its cause chained once.
+        CsvError::Io { source, .. } => LoadError::Read {
+            path: path.to_path_buf(),
+            source,
+        },
+        source => LoadError::Csv {
+            path: path.to_path_buf(),
+            source,
+        },
     })?;
     Ok(Loaded {
         recording,

@@ -769,3 +769,16 @@ fn a_closed_stdout_is_not_a_panic() {
         out.status
     );
 }
+
+/// A recording that is not there: its path and the cause, each said once.
+#[test]
+fn a_missing_recording_is_named_once() {
+    let d = dir("missing");
+    let rec = d.join("absent.csv");
+    let err = fails(
+        &ground(&[&"allan", &rec, &"--out", &d.join("a")]),
+        &["absent.csv", "os error 2"],
+    );
+    assert_eq!(err.matches("absent.csv").count(), 1, "{err}");
+    assert_eq!(err.matches("os error 2").count(), 1, "{err}");
+}

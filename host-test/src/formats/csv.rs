@@ -56,8 +56,8 @@ pub fn parse_f64(s: &str) -> Option<f64> {
 /// A CSV error with its position.
 #[derive(Debug, thiserror::Error)]
 pub enum CsvError {
-    /// I/O.
-    #[error("{path}: {source}")]
+    /// I/O. The cause is chained (`source`), not repeated in the message.
+    #[error("reading {path}")]
     Io {
         /// File.
         path: String,
