@@ -209,6 +209,25 @@ mod tests {
         assert!(b > 100.0 + at - 3.0 * WINDOW as f64 * 0.016, "{a} {b}");
     }
 
+    /// The diagnosis reports them, and its text lists each on its own line under a two-line heading.
+    #[test]
+    fn the_report_lists_them() {
+        let rec = record(1_800, 17, Some((1_650, 30, 1.5)));
+        let r = super::super::diagnose(&rec, &super::super::Options::default()).unwrap();
+        assert_eq!(r.disturbances, find(&rec, r.p_false));
+        let text = super::super::report::text(&r, "knock");
+        assert!(
+            text.contains("against the\ntypical window's): transients every sensor saw"),
+            "{text}"
+        );
+        let d = &r.disturbances[0];
+        let line = format!(
+            "\n  accel y: {:.3} … {:.3} s after the first sample, variance ×{:.1}",
+            d.start_s, d.end_s, d.variance_ratio
+        );
+        assert!(text.contains(&line), "{text}");
+    }
+
     #[test]
     fn stationary_records_have_none() {
         let mut found = 0;

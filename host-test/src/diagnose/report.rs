@@ -85,14 +85,14 @@ fn summary(s: &mut String, r: &Report, source: &str) {
     if !r.disturbances.is_empty() {
         let _ = writeln!(
             s,
-            "Shared disturbances (the cluster mean's scatter over {}-sample windows, about their line, against the
+            "Shared disturbances (the cluster mean's scatter over {}-sample windows, about their line, against the\n\
              typical window's): transients every sensor saw, included above; not stationary noise.",
             quiet::WINDOW
         );
         for d in &r.disturbances {
             let _ = writeln!(
                 s,
-                "  {} {}: {:.3} … {:.3} s, variance ×{:.1} (threshold ×{:.2})",
+                "  {} {}: {:.3} … {:.3} s after the first sample, variance ×{:.1} (threshold ×{:.2})",
                 d.sensor, d.axis, d.start_s, d.end_s, d.variance_ratio, d.threshold
             );
         }
