@@ -78,7 +78,7 @@ pub(super) fn block_len(n: usize) -> usize {
 }
 
 /// `z` minus its least-squares line.
-fn detrend(z: &[f64]) -> Vec<f64> {
+pub(super) fn detrend(z: &[f64]) -> Vec<f64> {
     let n = z.len() as f64;
     let tm = (n - 1.0) / 2.0;
     let zm = z.iter().sum::<f64>() / n.max(1.0);

@@ -14,6 +14,7 @@
 //! Consecutive disturbed windows of an axis are one disturbance (spec: `docs/diagnose.md`).
 
 use super::axis_works;
+use super::periodic::detrend;
 use super::singles::median_to_mean;
 use crate::recording::{AXIS_NAMES, Recording};
 use crate::stats::median;
@@ -45,22 +46,8 @@ pub struct Disturbance {
 
 /// Residual variance of `y` about its least-squares line (`ν = len − 2`).
 fn detrended_variance(y: &[f64]) -> f64 {
-    let n = y.len() as f64;
-    let xm = (n - 1.0) / 2.0;
-    let ym = y.iter().sum::<f64>() / n;
-    let (mut sxy, mut sxx) = (0.0, 0.0);
-    for (k, v) in y.iter().enumerate() {
-        let dx = k as f64 - xm;
-        sxy += dx * (v - ym);
-        sxx += dx * dx;
-    }
-    let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-    let ss: f64 = y
-        .iter()
-        .enumerate()
-        .map(|(k, v)| (v - ym - b * (k as f64 - xm)).powi(2))
-        .sum();
-    ss / (n - 2.0).max(1.0)
+    let ss: f64 = detrend(y).iter().map(|r| r * r).sum();
+    ss / (y.len() as f64 - 2.0).max(1.0)
 }
 
 /// The shared disturbances of `rec` (every axis with at least two sensors), in time order, at false-alarm
@@ -141,23 +128,31 @@ pub fn longest_quiet(rec: &Recording, found: &[Disturbance]) -> (f64, f64) {
         .unwrap_or((t0, t_end))
 }
 
-/// `rec` from `start_s` to `end_s` (a static interval; one sample interval past the end keeps the last sample),
-/// then, when that stretch holds shared disturbances, its longest quiet part ([`longest_quiet`]); with the
-/// disturbances found (times from the interval's start).
+/// Half a sample interval past `end_s`, so that a window ending at a sample's time keeps that sample.
+fn past(rec: &Recording, end_s: f64) -> f64 {
+    end_s + rec.sample_interval_s().map_or(1e-3, |dt| 0.5 * dt)
+}
+
+/// `rec` from `start_s` to `end_s`, both samples kept (a static interval as `calibrate::detect_static` gives it).
+pub fn interval(rec: &Recording, start_s: f64, end_s: f64) -> Recording {
+    rec.window(start_s, past(rec, end_s))
+}
+
+/// [`interval`], then, when that stretch holds shared disturbances, its longest quiet part ([`longest_quiet`]);
+/// with the disturbances found (times from the interval's start).
 pub fn quiet_window(
     rec: &Recording,
     start_s: f64,
     end_s: f64,
     p_false: f64,
 ) -> (Recording, Vec<Disturbance>) {
-    let past_end = rec.sample_interval_s().map_or(1e-3, |dt| 0.5 * dt);
-    let w = rec.window(start_s, end_s + past_end);
+    let w = interval(rec, start_s, end_s);
     let found = find(&w, p_false);
     if found.is_empty() {
         return (w, found);
     }
     let (a, b) = longest_quiet(&w, &found);
-    (w.window(a, b + past_end), found)
+    (w.window(a, past(&w, b)), found)
 }
 
 #[cfg(test)]

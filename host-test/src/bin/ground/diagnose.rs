@@ -83,9 +83,10 @@ pub fn run(a: Args) -> Result<()> {
         let p_false = Options::default().p_false;
         let (quiet, found) =
             diagnose::quiet::quiet_window(&loaded.recording, p.start_s, p.end_s, p_false);
-        if found.is_empty() || a.keep_disturbances {
-            // One frame interval past the end keeps the last frame.
-            loaded.recording = loaded.recording.window(p.start_s, p.end_s + 1e-3);
+        if found.is_empty() {
+            loaded.recording = quiet;
+        } else if a.keep_disturbances {
+            loaded.recording = diagnose::quiet::interval(&loaded.recording, p.start_s, p.end_s);
         } else {
             let (t0, t1) = (
                 quiet.t_s.first().copied().unwrap_or(f64::NAN),
