@@ -39,8 +39,8 @@ use shared::calib::encoded_len_max;
 use shared::pipeline::{Output, Pipeline, PipelineConfig, PipelineMemory};
 use shared::storage::{CalStore, StoreError};
 use shared::telemetry::{
-    CalSource, FaultRecord, HealthReport, HousekeepingReport, RxErrorCounts, StoreOutcome,
-    Telemetry,
+    CalSource, ClockSource, HealthReport, HousekeepingReport, ResetHistory, RxErrorCounts,
+    StoreOutcome, TaskId, Telemetry,
 };
 use shared::wire::FpgaControl;
 use shared::wire::frame::GROUPS;
@@ -63,6 +63,26 @@ pub const TELEMETRY_QUEUE: usize = 10;
 pub const REPLY_QUEUE: usize = 4;
 /// How often the watchdog task checks progress (and feeds the IWDG if every task made some).
 pub const WATCHDOG_PERIOD: Duration = Duration::from_millis(250);
+/// Longest a control message to the FPGA may take to leave (4 bytes at 2 Mbaud take 20 µs), else it is dropped and
+/// counted (`fpga_tx_timeouts`).
+pub const FPGA_TX_TIMEOUT: Duration = Duration::from_millis(20);
+/// Longest one bus frame may take to leave (the largest, ≈ 500 bytes with KISS escapes, takes 43 ms at
+/// 115200 baud), else it is dropped and counted (`bus_tx_errors`).
+pub const BUS_TX_TIMEOUT: Duration = Duration::from_millis(500);
+/// Longest a task that waits for events (the control queue, the store signals, PPS edges) waits before it beats
+/// anyway.
+pub const EVENT_WAIT: Duration = Duration::from_millis(500);
+/// Shortest time between two log lines of the same receive error (an error storm is counted, not logged).
+pub const ERROR_LOG_EVERY: Duration = Duration::from_secs(1);
+/// Tasks with a heartbeat ([`TaskId`]'s named variants, in order).
+pub const TASKS: usize = 8;
+/// Each task's deadline, ms: the longest it may go without a heartbeat before the watchdog stops feeding the
+/// IWDG (in [`TaskId`] order). Each is its longest wait (an [`IDLE_TIMEOUT`], an [`EVENT_WAIT`], a period) plus
+/// the longest stall of every task, a calibration store (`layout::STORE_STALL_MAX_US`, 0.6 s), plus margin:
+/// link, FPGA control, bus RX, bus TX 2 s; storage 3 s (its own store, then a wait); watchdog 1 s (250 ms period);
+/// housekeeping 3 s (1 s period, the ADC); PPS 2 s. The IWDG then resets within its timeout (`board.rs`: 8 s
+/// nominal, 5.4 s at the fastest LSI) after the first miss: a hung task resets the MCU within 11 s.
+pub const DEADLINES_MS: [u32; TASKS] = [2_000, 2_000, 2_000, 2_000, 3_000, 1_000, 3_000, 2_000];
 /// Housekeeping periods between log lines of link statistics.
 pub const LOG_EVERY: u32 = 10;
 /// Housekeeping period: a [`HousekeepingReport`] each time, a Health report too while the FPGA link is silent, and
@@ -102,16 +122,19 @@ pub trait ClassifyRxError {
     fn classify(&self) -> RxFault;
 }
 
-/// Tasks whose progress the watchdog checks.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Task {
-    /// [`link_loop`].
-    Link = 0,
-    /// [`bus_rx_loop`].
-    BusRx = 1,
-    /// [`bus_tx_loop`].
-    BusTx = 2,
+/// The heartbeat slot of `task` (`TaskId`'s named variants in order; `None` for `Other`).
+pub const fn task_index(task: TaskId) -> Option<usize> {
+    Some(match task {
+        TaskId::Link => 0,
+        TaskId::FpgaCtrl => 1,
+        TaskId::BusRx => 2,
+        TaskId::BusTx => 3,
+        TaskId::Storage => 4,
+        TaskId::Watchdog => 5,
+        TaskId::Housekeeping => 6,
+        TaskId::Pps => 7,
+        TaskId::Other(_) => return None,
+    })
 }
 
 /// Declares the shell's counters once: the public snapshot [`ShellCounters`] (one field each), the private
@@ -187,6 +210,12 @@ shell_counters! {
     cal_ram_repairs: CalRamRepairs,
     /// Times the core clock stayed full after a stop because FPGA bytes kept arriving.
     clock_kept: ClockKept,
+    /// Control messages to the FPGA that did not leave within [`FPGA_TX_TIMEOUT`] (or failed).
+    fpga_tx_errors: FpgaTx,
+    /// Calibration stores refused because VDD was below the x32 programming minimum.
+    stores_refused_low_vdd: LowVdd,
+    /// Periods the watchdog did not feed the IWDG because a task was late.
+    watchdog_misses: WatchdogMiss,
 }
 
 /// What the board knows at boot, reported in every [`HousekeepingReport`].
@@ -194,19 +223,131 @@ shell_counters! {
 pub struct BootInfo {
     /// Reset flags (RCC_CSR bits 25–31, shifted down; see [`HousekeepingReport::reset_flags`]).
     pub reset_flags: u8,
-    /// The fault recorded before this reset.
-    pub fault: Option<FaultRecord>,
+    /// The boot counter (0: no reset history on this platform).
+    pub boot_count: u32,
+    /// Booted in safe mode (crash loop): factory calibration, no FPGA tasks.
+    pub safe_mode: bool,
+    /// Where the system clock comes from (`None`: not known).
+    pub clock_source: Option<ClockSource>,
+    /// RCC_CR.HSITRIM in force.
+    pub hsi_trim: u8,
+    /// The brown-out reset level of the option bytes.
+    pub bor_level: Option<u8>,
 }
 
+/// The reset history kept across resets (`crate::resets`), as the tasks reach it.
+pub trait ResetLog: Sync {
+    /// The history now.
+    fn report(&self, safe_mode: bool) -> ResetHistory;
+    /// `ClearResets`: records and the crash-loop counter cleared.
+    fn clear(&self);
+    /// Notes the uptime, for the record of a reset that leaves none; `fed`: the watchdog was fed this period, so a
+    /// deadline miss the monitor filed earlier did not lead to a reset (withdrawn).
+    fn note_uptime(&self, uptime_ms: u32, fed: bool);
+    /// This boot outlived the short-run time: the crash loop is over.
+    fn end_crash_loop(&self);
+}
+
+/// Receive errors the board's interrupt handlers took before the drivers saw them (`board.rs`: the errors never stop
+/// the DMA rings), added to the shell's own counts in housekeeping.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct UartErrors {
+    /// FPGA link.
+    pub link: RxErrorCounts,
+    /// Bus.
+    pub bus: RxErrorCounts,
+    /// DMA transfer errors.
+    pub dma: u32,
+}
+
+/// The HSI's trim, offered by the board only while the core runs on the HSI (`board.rs`).
+#[derive(Debug, Clone, Copy)]
+pub struct HsiTrim {
+    /// RCC_CR.HSITRIM now (0–31).
+    pub read: fn() -> u8,
+    /// Sets RCC_CR.HSITRIM.
+    pub write: fn(u8),
+}
+
+/// Crystal time (FPGA frames) one trim decision averages over, s: ±1 frame in 6 048 is ±165 ppm of resolution.
+pub const HSI_TRIM_WINDOW_S: u64 = 10;
+/// The HSI's error beyond which the trim moves one step, ppm. One HSITRIM step is about 0.5 % (RM0090 §7.2.2:
+/// 32 steps over the HSI's range, the factory value in the middle), so a band of ±0.3 % lets the loop settle within
+/// one step of the best trim instead of hunting.
+pub const HSI_TRIM_DEADBAND_PPM: i64 = 3_000;
+
+/// The HSI's error, ppm (positive: fast), from `fpga_us` of crystal time (frames counted from the FPGA) that took
+/// `local_us` on the core's clock (the HSI through the PLL); `None` for an empty window.
+pub fn hsi_error_ppm(fpga_us: u64, local_us: u64) -> Option<i64> {
+    let diff = i128::from(local_us).checked_sub(i128::from(fpga_us))?;
+    let ppm = diff
+        .checked_mul(1_000_000)?
+        .checked_div(i128::from(fpga_us))?;
+    i64::try_from(ppm).ok()
+}
+
+/// The next HSITRIM for an error of `error_ppm` at `trim`: one step down when fast beyond the dead band, one up when
+/// slow, within 0–31.
+pub fn next_hsi_trim(trim: u8, error_ppm: i64) -> u8 {
+    if error_ppm > HSI_TRIM_DEADBAND_PPM {
+        trim.saturating_sub(1)
+    } else if error_ppm < -HSI_TRIM_DEADBAND_PPM {
+        trim.saturating_add(1).min(31)
+    } else {
+        trim
+    }
+}
+
+/// Crystal time of `frames` frames at FPGA decimation `decimation` and base rate `base_rate_millihz`, µs.
+fn fpga_time_us(frames: u64, decimation: u16, base_rate_millihz: u64) -> u64 {
+    let ticks = u128::from(frames).saturating_mul(u128::from(decimation).saturating_add(1));
+    let us = ticks
+        .saturating_mul(1_000_000_000)
+        .checked_div(u128::from(base_rate_millihz))
+        .unwrap_or(0);
+    u64::try_from(us).unwrap_or(u64::MAX)
+}
+
+/// One trim window: where it started on both clocks.
+#[derive(Debug, Clone, Copy)]
+struct TrimWindow {
+    at: Instant,
+    frames: u64,
+    decimation: u16,
+}
+
+/// Minimum VDD for a calibration store, mV: x32 programming needs 2.7 V (DS8626), and a store at a sagging rail
+/// can leave weak bits the read-back does not see. Measured as VDDA (VREFINT), which the board ties to VDD.
+pub const STORE_VDD_MIN_MV: u16 = 2_800;
+
 /// What the board offers the shell besides its peripherals (nothing, on the host, unless a test sets it).
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Clone, Copy, Default)]
 pub struct Platform {
     /// What the board knew at boot (reset flags, a recorded fault).
     pub boot: BootInfo,
     /// A cycle counter, for the core's load in housekeeping (at the rate the [`CoreClock`] reports).
     pub cycles: Option<CycleCounter>,
-    /// A reader of the MCU's temperature (0.01 °C) and VDDA (mV), for housekeeping.
+    /// A reader of the MCU's temperature (0.01 °C) and VDDA (mV), for housekeeping and the store's VDD check.
     pub mcu_sensors: Option<McuSensorReader>,
+    /// The reset history.
+    pub resets: Option<&'static dyn ResetLog>,
+    /// Receive errors taken by the board's interrupt handlers.
+    pub uart_errors: Option<fn() -> UartErrors>,
+    /// The HSI's trim, while the core runs on the HSI: housekeeping trims it against the FPGA's frame rate.
+    pub hsi_trim: Option<HsiTrim>,
+}
+
+impl core::fmt::Debug for Platform {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Platform")
+            .field("boot", &self.boot)
+            .field("cycles", &self.cycles)
+            .field("mcu_sensors", &self.mcu_sensors)
+            .field("resets", &self.resets.map(|_| ".."))
+            .field("uart_errors", &self.uart_errors)
+            .field("hsi_trim", &self.hsi_trim)
+            .finish()
+    }
 }
 
 impl Platform {
@@ -214,10 +355,17 @@ impl Platform {
     pub const NONE: Self = Self {
         boot: BootInfo {
             reset_flags: 0,
-            fault: None,
+            boot_count: 0,
+            safe_mode: false,
+            clock_source: None,
+            hsi_trim: 0,
+            bor_level: None,
         },
         cycles: None,
         mcu_sensors: None,
+        resets: None,
+        uart_errors: None,
+        hsi_trim: None,
     };
 }
 
@@ -264,7 +412,14 @@ pub struct App<B> {
     persist: Signal<Raw, u16>,
     /// The calibration in RAM failed its CRC check: reload it from flash.
     reload: Signal<Raw, ()>,
-    progress: [AtomicU32; 3],
+    /// Each task's last heartbeat, ms of uptime (wrapping).
+    heartbeats: [AtomicU32; TASKS],
+    /// Tasks the watchdog checks (bit i: [`TASKS`] order); all unless the board runs fewer (safe mode).
+    monitored: AtomicU32,
+    /// Fault injection: tasks that hang (await forever) at their next heartbeat (read only in a fault-injection
+    /// build).
+    #[cfg_attr(not(feature = "fault-injection"), allow(dead_code))]
+    hang: AtomicU32,
     counters: AtomicCounters,
     bus_counters: BlockingMutex<Raw, Cell<BusCounters>>,
     last_store: BlockingMutex<Raw, Cell<StoreOutcome>>,
@@ -277,6 +432,8 @@ pub struct App<B> {
     link_stale: AtomicBool,
     /// The core clock's rate, Hz, as `fpga_ctrl_loop` last set it (0: not yet).
     core_hz: AtomicU32,
+    /// The HSI's error over the last trim window, ppm (`i32::MIN`: none).
+    hsi_error_ppm: core::sync::atomic::AtomicI32,
 }
 
 impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
@@ -298,7 +455,9 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
             fpga: Channel::new(),
             persist: Signal::new(),
             reload: Signal::new(),
-            progress: [const { AtomicU32::new(0) }; 3],
+            heartbeats: [const { AtomicU32::new(0) }; TASKS],
+            monitored: AtomicU32::new((1 << TASKS) - 1),
+            hang: AtomicU32::new(0),
             counters: AtomicCounters::new(),
             bus_counters: BlockingMutex::new(Cell::new(BusCounters::ZERO)),
             last_store: BlockingMutex::new(Cell::new(StoreOutcome::None)),
@@ -307,6 +466,7 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
             link_bytes: AtomicU32::new(0),
             link_stale: AtomicBool::new(false),
             core_hz: AtomicU32::new(0),
+            hsi_error_ppm: core::sync::atomic::AtomicI32::new(i32::MIN),
         }
     }
 
@@ -320,11 +480,38 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
         self.bus
     }
 
-    /// How many times `task` went round its loop.
-    pub fn progress(&self, task: Task) -> u32 {
-        self.progress
-            .get(task as usize)
-            .map_or(0, |p| p.load(Ordering::Relaxed))
+    /// The last heartbeat of `task`, ms of uptime (0 before its first).
+    pub fn last_beat_ms(&self, task: TaskId) -> u32 {
+        task_index(task)
+            .and_then(|i| self.heartbeats.get(i))
+            .map_or(0, |h| h.load(Ordering::Relaxed))
+    }
+
+    /// Sets which tasks run (bit i: [`TASKS`] order): the others are not checked.
+    pub fn set_monitored(&self, mask: u32) {
+        self.monitored.store(mask, Ordering::Relaxed);
+    }
+
+    /// The first task past its deadline at `now_ms` (uptime), if any: the watchdog feeds only while there is none,
+    /// and the flight build's deadline monitor (SysTick) records it.
+    pub fn late_task(&self, now_ms: u32) -> Option<TaskId> {
+        let monitored = self.monitored.load(Ordering::Relaxed);
+        (0..TASKS)
+            .zip(self.heartbeats.iter().zip(DEADLINES_MS))
+            .find(|&(i, (beat, deadline))| {
+                monitored & (1 << i) != 0
+                    && now_ms.wrapping_sub(beat.load(Ordering::Relaxed)) > deadline
+            })
+            .map(|(i, _)| crate::resets::task_id(u32::try_from(i).unwrap_or(u32::MAX)))
+    }
+
+    /// Fault injection: `task` hangs (awaits forever) at its next heartbeat, as a task waiting on something that
+    /// never comes would.
+    #[cfg(feature = "fault-injection")]
+    pub fn inject_hang(&self, task: TaskId) {
+        if let Some(i) = task_index(task) {
+            self.hang.fetch_or(1 << i, Ordering::Relaxed);
+        }
     }
 
     /// The shell's counters now.
@@ -342,26 +529,46 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
         sensors: Option<(i16, u16)>,
     ) -> HousekeepingReport {
         let c = self.counters();
+        let boot = self.platform.boot;
+        let taken = self.platform.uart_errors.map(|f| f()).unwrap_or_default();
+        let sum = |a: RxErrorCounts, b: RxErrorCounts| RxErrorCounts {
+            overrun: a.overrun.wrapping_add(b.overrun),
+            line: a.line.wrapping_add(b.line),
+            other: a.other.wrapping_add(b.other),
+        };
         HousekeepingReport {
             uptime_ms: now.as_millis(),
             fw_commit: FW_COMMIT.0,
             fw_dirty: FW_COMMIT.1,
-            reset_flags: self.platform.boot.reset_flags,
-            fault: self.platform.boot.fault,
+            reset_flags: boot.reset_flags,
+            boot_count: boot.boot_count,
+            safe_mode: boot.safe_mode,
+            clock_source: boot.clock_source,
+            hsi_trim: self.platform.hsi_trim.map_or(boot.hsi_trim, |t| (t.read)()),
+            hsi_error_ppm: Some(self.hsi_error_ppm.load(Ordering::Relaxed))
+                .filter(|&e| e != i32::MIN),
+            bor_level: boot.bor_level,
+            stores_refused_low_vdd: c.stores_refused_low_vdd,
             core_load_permille: load.map(|l| l.0),
             core_cycles_per_frame: load.and_then(|l| l.1),
             mcu_temp_cdeg: sensors.map(|s| s.0),
             vdda_mv: sensors.map(|s| s.1),
-            link_rx_errors: RxErrorCounts {
-                overrun: c.link_overruns,
-                line: c.link_line_errors,
-                other: c.link_other_errors,
-            },
-            bus_rx_errors: RxErrorCounts {
-                overrun: c.bus_rx_overruns,
-                line: c.bus_rx_line_errors,
-                other: c.bus_rx_other_errors,
-            },
+            link_rx_errors: sum(
+                RxErrorCounts {
+                    overrun: c.link_overruns,
+                    line: c.link_line_errors,
+                    other: c.link_other_errors.wrapping_add(taken.dma),
+                },
+                taken.link,
+            ),
+            bus_rx_errors: sum(
+                RxErrorCounts {
+                    overrun: c.bus_rx_overruns,
+                    line: c.bus_rx_line_errors,
+                    other: c.bus_rx_other_errors,
+                },
+                taken.bus,
+            ),
             bus_tx_errors: c.bus_tx_errors,
             bus: self.bus_counters.lock(Cell::get),
             fpga_ctrl_dropped: c.fpga_ctrl_dropped,
@@ -381,9 +588,16 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
         }
     }
 
-    fn tick(&self, task: Task) {
-        if let Some(p) = self.progress.get(task as usize) {
-            p.fetch_add(1, Ordering::Relaxed);
+    /// `task` is alive now (or, in a fault-injection build asked to hang it, never returns).
+    async fn beat(&self, task: TaskId) {
+        let Some(i) = task_index(task) else { return };
+        #[cfg(feature = "fault-injection")]
+        if self.hang.load(Ordering::Relaxed) & (1 << i) != 0 {
+            warn!("fault injection: {:?} hangs", task);
+            core::future::pending::<()>().await;
+        }
+        if let Some(h) = self.heartbeats.get(i) {
+            h.store(uptime_ms(), Ordering::Relaxed);
         }
     }
 
@@ -402,6 +616,12 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
                 }
             }
             Output::PersistCalibration { tag } => self.persist.signal(tag),
+            Output::ClearResets => {
+                if let Some(r) = self.platform.resets {
+                    r.clear();
+                    info!("reset history cleared by command");
+                }
+            }
         }
     }
 
@@ -437,6 +657,31 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
     }
 }
 
+/// Uptime, ms, wrapping (the heartbeats' clock).
+fn uptime_ms() -> u32 {
+    #[allow(clippy::cast_possible_truncation)]
+    // wrapping by design: deadlines compare with `wrapping_sub`
+    let ms = Instant::now().as_millis() as u32;
+    ms
+}
+
+/// Logs a receive error at most every [`ERROR_LOG_EVERY`] (a storm is counted, not logged: logging every byte's
+/// error would cost more than the error).
+struct ErrorLog(Option<Instant>);
+
+impl ErrorLog {
+    fn due(&mut self) -> bool {
+        let now = Instant::now();
+        let due = self
+            .0
+            .is_none_or(|last| now.saturating_duration_since(last) >= ERROR_LOG_EVERY);
+        if due {
+            self.0 = Some(now);
+        }
+        due
+    }
+}
+
 /// FPGA frames in: read the DMA ring, feed the pipeline, route its outputs. Never waits for the bus. Receive errors
 /// are counted and never fatal: the driver restarts reception on the next read, and the frame decoder
 /// resynchronises, so an error costs only the frames whose bytes it touched.
@@ -447,8 +692,9 @@ where
     R::Error: ClassifyRxError + Loggable,
 {
     let mut buf = [0u8; LINK_CHUNK];
+    let mut log = ErrorLog(None);
     loop {
-        app.tick(Task::Link);
+        app.beat(TaskId::Link).await;
         let read = with_timeout(IDLE_TIMEOUT, rx.read(&mut buf)).await;
         if app.link_stale.swap(false, Ordering::AcqRel) {
             // A calibration store ran: no task ran for up to `STORE_STALL_MAX_US`, long enough for the DMA to lap
@@ -470,7 +716,15 @@ where
                     RxFault::Line => app.count(Counter::LinkLine),
                     RxFault::Other => app.count(Counter::LinkOther),
                 }
-                warn!("fpga link: rx error {:?}", e);
+                if log.due() {
+                    warn!(
+                        "fpga link: rx error {:?} (counted; logged at most every second)",
+                        e
+                    );
+                }
+                // The driver restarts the ring on the next read; yield first, so that a line that errors on every
+                // byte cannot keep the other tasks from running.
+                embassy_futures::yield_now().await;
                 continue;
             }
         };
@@ -514,8 +768,9 @@ where
 {
     let mut node = BusNode::new(app.bus);
     let mut buf = [0u8; 256];
+    let mut log = ErrorLog(None);
     loop {
-        app.tick(Task::BusRx);
+        app.beat(TaskId::BusRx).await;
         let n = match with_timeout(IDLE_TIMEOUT, rx.read(&mut buf)).await {
             Err(_idle) => continue,
             Ok(Ok(n)) => n,
@@ -525,7 +780,13 @@ where
                     RxFault::Line => Counter::BusRxLine,
                     RxFault::Other => Counter::BusRxOther,
                 });
-                warn!("bus: rx error {:?}", e);
+                if log.due() {
+                    warn!(
+                        "bus: rx error {:?} (counted; logged at most every second)",
+                        e
+                    );
+                }
+                embassy_futures::yield_now().await;
                 continue;
             }
         };
@@ -568,7 +829,7 @@ where
     let node = BusNode::new(app.bus);
     let mut wire = [0u8; MAX_WIRE_FRAME];
     loop {
-        app.tick(Task::BusTx);
+        app.beat(TaskId::BusTx).await;
         let item = if let Ok(r) = app.replies.try_receive() {
             r
         } else if let Ok(t) = app.telemetry.try_receive() {
@@ -594,12 +855,22 @@ where
                 .map_err(|_| ()),
         };
         match frame {
-            Ok(n) => {
-                if let Err(e) = tx.write_all(wire.get(..n).unwrap_or(&[])).await {
+            Ok(n) => match with_timeout(BUS_TX_TIMEOUT, tx.write_all(wire.get(..n).unwrap_or(&[])))
+                .await
+            {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => {
                     app.count(Counter::BusTx);
                     warn!("bus: tx error {:?}", e);
                 }
-            }
+                Err(_timeout) => {
+                    app.count(Counter::BusTx);
+                    warn!(
+                        "bus: a frame did not leave within {:?} ms",
+                        BUS_TX_TIMEOUT.as_millis()
+                    );
+                }
+            },
             Err(()) => error!("bus: a message did not fit a frame"),
         }
     }
@@ -617,7 +888,10 @@ where
 {
     app.core_hz.store(clock.set_low(false), Ordering::Relaxed);
     loop {
-        let msg = app.fpga.receive().await;
+        app.beat(TaskId::FpgaCtrl).await;
+        let Ok(msg) = with_timeout(EVENT_WAIT, app.fpga.receive()).await else {
+            continue;
+        };
         info!("fpga: {:?}", msg);
         if msg == FpgaControl::SetStreaming(true) {
             app.core_hz.store(clock.set_low(false), Ordering::Relaxed);
@@ -626,8 +900,16 @@ where
             tx.write_all(&msg.to_bytes()).await?;
             tx.flush().await
         };
-        if let Err(e) = sent.await {
-            warn!("fpga: control tx error {:?}", e);
+        match with_timeout(FPGA_TX_TIMEOUT, sent).await {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => {
+                app.count(Counter::FpgaTx);
+                warn!("fpga: control tx error {:?}", e);
+            }
+            Err(_timeout) => {
+                app.count(Counter::FpgaTx);
+                warn!("fpga: control message did not leave in time");
+            }
         }
         if msg == FpgaControl::SetStreaming(false) {
             // Only on a quiet line: the FPGA may still send the rest of a frame, and while the prescalers change,
@@ -707,7 +989,13 @@ where
 {
     let mut scratch = [0u8; CAL_SCRATCH];
     loop {
-        let tag = match select(app.persist.wait(), app.reload.wait()).await {
+        app.beat(TaskId::Storage).await;
+        let Ok(event) =
+            with_timeout(EVENT_WAIT, select(app.persist.wait(), app.reload.wait())).await
+        else {
+            continue;
+        };
+        let tag = match event {
             Either::First(tag) => tag,
             Either::Second(()) => {
                 // The table in RAM failed its CRC: the newest stored one (or the factory default) replaces it.
@@ -719,6 +1007,22 @@ where
         // The store is synchronous (the CPU stalls on the erase and the word programs anyway), so the lock is held
         // through it and the table is not copied into this task's state (1.8 KiB of RAM); no task runs until it
         // returns (`layout::STORE_STALL_MAX_US`: the bus ring holds twice that, the link task drops its ring).
+        // VDD first: a store below the x32 programming minimum could write weak bits the read-back passes.
+        let vdd_mv = app
+            .platform
+            .mcu_sensors
+            .and_then(|read| read())
+            .map(|s| s.1);
+        if vdd_mv.is_some_and(|mv| mv < STORE_VDD_MIN_MV) {
+            app.count(Counter::LowVdd);
+            error!("calibration: store refused, VDD {:?} mV", vdd_mv);
+            app.last_store.lock(|c| c.set(StoreOutcome::Failed));
+            let ack = app.pipeline.lock().await.calibration_persisted(tag, false);
+            app.replies
+                .send(BusOut::Telemetry(Telemetry::Ack(ack)))
+                .await;
+            continue;
+        }
         let (cal_id, result) = {
             let pipeline = app.pipeline.lock().await;
             let table = pipeline.calibration();
@@ -749,24 +1053,24 @@ where
     }
 }
 
-/// Feeds the watchdog only while every task makes progress, and blinks the LED when it does.
-pub async fn watchdog_loop<B, L: OutputPin>(
+/// Feeds the watchdog only while every task's heartbeat is within its deadline ([`DEADLINES_MS`]), notes the
+/// uptime for the reset history, and blinks the LED while it feeds.
+pub async fn watchdog_loop<B: core::borrow::BorrowMut<PipelineMemory>, L: OutputPin>(
     app: &App<B>,
     period: Duration,
     mut feed: impl FnMut(),
     led: &mut L,
 ) -> ! {
-    let mut last = [0u32; 3];
     let mut ticker = Ticker::every(period);
     loop {
         ticker.next().await;
-        let mut all = true;
-        for (p, l) in app.progress.iter().zip(last.iter_mut()) {
-            let now = p.load(Ordering::Relaxed);
-            all &= now != *l;
-            *l = now;
+        app.beat(TaskId::Watchdog).await;
+        let now_ms = uptime_ms();
+        let late = app.late_task(now_ms);
+        if let Some(r) = app.platform.resets {
+            r.note_uptime(now_ms, late.is_none());
         }
-        if all {
+        if late.is_none() {
             feed();
             let period_ms = NonZeroU64::new(period.as_millis()).unwrap_or(NonZeroU64::MIN);
             let _ = led.set_state(
@@ -775,9 +1079,58 @@ pub async fn watchdog_loop<B, L: OutputPin>(
                     .into(),
             );
         } else {
-            warn!("watchdog: a task made no progress, not feeding");
+            app.count(Counter::WatchdogMiss);
+            warn!("watchdog: {:?} missed its deadline, not feeding", late);
         }
     }
+}
+
+/// One housekeeping period of the HSI trim loop: while frames stream at a steady decimation, compares the FPGA's
+/// crystal time (frames counted, lost ones included) with the core's clock over [`HSI_TRIM_WINDOW_S`] and moves
+/// HSITRIM one step when the error is beyond [`HSI_TRIM_DEADBAND_PPM`]; returns the window to go on with.
+fn trim_hsi<B: core::borrow::BorrowMut<PipelineMemory>>(
+    app: &App<B>,
+    p: &Pipeline<B>,
+    trim: HsiTrim,
+    window: Option<TrimWindow>,
+    now: Instant,
+) -> Option<TrimWindow> {
+    let link = p.link_counters();
+    let frames = u64::from(link.frames).saturating_add(u64::from(link.frames_dropped));
+    let decimation = p.health().decimation?;
+    if p.mode() != shared::telemetry::Mode::Stream {
+        return None;
+    }
+    let fresh = Some(TrimWindow {
+        at: now,
+        frames,
+        decimation,
+    });
+    let Some(w) = window.filter(|w| w.decimation == decimation && frames >= w.frames) else {
+        return fresh;
+    };
+    let local_us = now.duration_since(w.at).as_micros();
+    if local_us < HSI_TRIM_WINDOW_S.saturating_mul(1_000_000) {
+        return window;
+    }
+    let fpga_us = fpga_time_us(
+        frames.saturating_sub(w.frames),
+        decimation,
+        p.config().fpga_base_rate_millihz,
+    );
+    if let Some(e) = hsi_error_ppm(fpga_us, local_us) {
+        app.hsi_error_ppm.store(
+            i32::try_from(e).unwrap_or(if e > 0 { i32::MAX } else { i32::MIN + 1 }),
+            Ordering::Relaxed,
+        );
+        let old = (trim.read)();
+        let new = next_hsi_trim(old, e);
+        if new != old {
+            (trim.write)(new);
+            info!("hsi: error {:?} ppm, trim {:?} -> {:?}", e, old, new);
+        }
+    }
+    fresh
 }
 
 /// A PPS input: the time of each rising edge on the arrival clock (`Instant`, µs), the clock the link task stamps
@@ -794,7 +1147,10 @@ where
     B: core::borrow::BorrowMut<PipelineMemory>,
 {
     loop {
-        let edge_us = pps.edge_us().await;
+        app.beat(TaskId::Pps).await;
+        let Ok(edge_us) = with_timeout(EVENT_WAIT, pps.edge_us()).await else {
+            continue;
+        };
         match app.pipeline.lock().await.pps(edge_us) {
             Some(correction_us) => debug!("pps: time corrected by {:?} us", correction_us),
             None => debug!("pps: edge at {:?} us refused", edge_us),
@@ -817,8 +1173,11 @@ where
     let mut last_busy = app.busy_cycles.load(Ordering::Relaxed);
     let mut last_at = Instant::now();
     let mut n = 0u32;
+    let mut crash_loop_over = false;
+    let mut trim_window: Option<TrimWindow> = None;
     loop {
         ticker.next().await;
+        app.beat(TaskId::Housekeeping).await;
         // The ADC conversions before the pipeline is locked: the link task need not wait for them.
         let sensors = app.platform.mcu_sensors.and_then(|read| read());
         let p = app.pipeline.lock().await;
@@ -848,9 +1207,21 @@ where
             )
         });
         (last_busy, last_at) = (busy, now);
+        if let Some(trim) = app.platform.hsi_trim {
+            trim_window = trim_hsi(app, &p, trim, trim_window, now);
+        }
         last_frames = Some(link.frames);
         let hk = app.housekeeping(&p, now, load, sensors);
         app.route(Output::Telemetry(Telemetry::Housekeeping(hk)));
+        if let Some(r) = app.platform.resets {
+            app.route(Output::Telemetry(Telemetry::Resets(
+                r.report(app.platform.boot.safe_mode),
+            )));
+            if !crash_loop_over && now.as_millis() >= u64::from(crate::resets::SHORT_RUN_MS) {
+                r.end_crash_loop();
+                crash_loop_over = true;
+            }
+        }
         app.count(Counter::Housekeeping);
         if !p.calibration_intact() {
             error!("calibration: CRC check of the table in RAM failed; reloading from flash");
@@ -868,5 +1239,41 @@ where
                 );
             }
         }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::arithmetic_side_effects)]
+mod hsi_tests {
+    use super::*;
+
+    /// The error against an f64 reference, and the trim's direction: an HSI 1 % fast (the core's clock counts
+    /// 10.1 s while the crystal's frames say 10 s) steps down, one 1 % slow steps up, and the dead band holds.
+    #[test]
+    fn hsi_error_and_trim_step() {
+        let base = PipelineConfig::DEFAULT.fpga_base_rate_millihz;
+        // 6 048 frames at decimation 15: exactly 10 s of crystal time.
+        let fpga_us = fpga_time_us(6_048, 15, base);
+        let reference = 6_048.0 * 16.0 / (base as f64 / 1000.0) * 1e6;
+        assert!(
+            (fpga_us as f64 - reference).abs() <= 1.0,
+            "{fpga_us} vs {reference}"
+        );
+        for (local_us, ppm) in [
+            (10_100_000u64, 10_000i64),
+            (9_900_000, -10_000),
+            (10_002_000, 200),
+        ] {
+            let e = hsi_error_ppm(fpga_us, local_us).unwrap();
+            let f64_ppm = (local_us as f64 / fpga_us as f64 - 1.0) * 1e6;
+            assert!((e as f64 - f64_ppm).abs() < 1.0, "{e} vs {f64_ppm}");
+            assert!((e - ppm).abs() <= 1, "{e}");
+        }
+        assert_eq!(next_hsi_trim(16, 10_000), 15);
+        assert_eq!(next_hsi_trim(16, -10_000), 17);
+        assert_eq!(next_hsi_trim(16, 2_000), 16);
+        assert_eq!(next_hsi_trim(0, 10_000), 0);
+        assert_eq!(next_hsi_trim(31, -10_000), 31);
+        assert_eq!(hsi_error_ppm(0, 1), None);
     }
 }

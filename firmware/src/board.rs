@@ -56,15 +56,137 @@ use firmware::layout::{
 
 pub use firmware::layout::{BUS_BAUD, FPGA_BAUD};
 
+// Each USART's and DMA stream's own handler runs first (`LineErrors`, `DmaErrors`), then embassy's.
 bind_interrupts!(pub struct Irqs {
     TIM2 => timer::CaptureCompareInterruptHandler<peripherals::TIM2>;
-    USART1 => usart::InterruptHandler<peripherals::USART1>;
-    USART2 => usart::InterruptHandler<peripherals::USART2>;
-    DMA1_STREAM5 => dma::InterruptHandler<peripherals::DMA1_CH5>;
-    DMA1_STREAM6 => dma::InterruptHandler<peripherals::DMA1_CH6>;
-    DMA2_STREAM2 => dma::InterruptHandler<peripherals::DMA2_CH2>;
-    DMA2_STREAM7 => dma::InterruptHandler<peripherals::DMA2_CH7>;
+    USART1 => LineErrors, usart::InterruptHandler<peripherals::USART1>;
+    USART2 => LineErrors, usart::InterruptHandler<peripherals::USART2>;
+    DMA1_STREAM5 => DmaErrors, dma::InterruptHandler<peripherals::DMA1_CH5>;
+    DMA1_STREAM6 => DmaErrors, dma::InterruptHandler<peripherals::DMA1_CH6>;
+    DMA2_STREAM2 => DmaErrors, dma::InterruptHandler<peripherals::DMA2_CH2>;
+    DMA2_STREAM7 => DmaErrors, dma::InterruptHandler<peripherals::DMA2_CH7>;
 });
+
+/// Receive errors the interrupt handlers took before the drivers saw them: [FPGA link, bus] × [overrun, line].
+static UART_ERRORS: [[core::sync::atomic::AtomicU32; 2]; 2] =
+    [const { [const { core::sync::atomic::AtomicU32::new(0) }; 2] }; 2];
+/// DMA transfer errors (any of the four streams), counted and recovered instead of embassy's panic.
+static DMA_ERRORS: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
+
+/// Receive errors taken by the handlers, as `[FPGA link, bus]` counts (`app::Platform::uart_errors`).
+pub fn uart_errors() -> firmware::app::UartErrors {
+    use core::sync::atomic::Ordering::Relaxed;
+    let counts = |i: usize| {
+        UART_ERRORS
+            .get(i)
+            .map_or(shared::telemetry::RxErrorCounts::default(), |c| {
+                shared::telemetry::RxErrorCounts {
+                    overrun: c[0].load(Relaxed),
+                    line: c[1].load(Relaxed),
+                    other: 0,
+                }
+            })
+    };
+    firmware::app::UartErrors {
+        link: counts(0),
+        bus: counts(1),
+        dma: DMA_ERRORS.load(Relaxed),
+    }
+}
+
+/// Takes a USART's receive errors (framing, noise, parity, overrun) before embassy's driver sees them: counts them
+/// and clears them (SR read, then DR read: RM0090 §30.6.1), and the DMA ring runs on. embassy-stm32 0.6.0's
+/// ring-buffered receiver stops its DMA stream on every error and restarts it on the next read without
+/// reprogramming it; whether the F4's stream then resumes in place or from the buffer's start (and whether the
+/// disable set TCIF, which the driver counts as a lap) is not settled (upstream issue 6592 reports the F411 resumes
+/// in place; AN4031 and RM0090 §10.3.17 allow the other), and the later upstream ring-buffer fixes are not released.
+/// Taking the errors here keeps the stream running through an error storm whichever it is (`tools/fw-check`
+/// models the restart from the start, and its line-noise scenario found stale frames replayed without this). The
+/// byte that carried the error is in the ring (the decoder's CRC drops its frame); a byte arriving between the two
+/// reads would be lost too (< 1 µs at 2 Mbaud, 5 µs per byte).
+pub struct LineErrors;
+
+fn take_line_errors(
+    r: embassy_stm32::pac::usart::Usart,
+    counts: &[core::sync::atomic::AtomicU32; 2],
+) {
+    use core::sync::atomic::Ordering::Relaxed;
+    let sr = r.sr().read();
+    if sr.ore() || sr.fe() || sr.ne() || sr.pe() {
+        // The second half of the clearing sequence (the first is the SR read above).
+        let _ = r.dr().read();
+        let [overrun, line] = counts;
+        if sr.ore() {
+            overrun.fetch_add(1, Relaxed);
+        }
+        if sr.fe() || sr.ne() || sr.pe() {
+            line.fetch_add(1, Relaxed);
+        }
+    }
+}
+
+impl embassy_stm32::interrupt::typelevel::Handler<embassy_stm32::interrupt::typelevel::USART1>
+    for LineErrors
+{
+    #[allow(unsafe_code)]
+    unsafe fn on_interrupt() {
+        if let Some(c) = UART_ERRORS.first() {
+            take_line_errors(embassy_stm32::pac::USART1, c);
+        }
+    }
+}
+
+impl embassy_stm32::interrupt::typelevel::Handler<embassy_stm32::interrupt::typelevel::USART2>
+    for LineErrors
+{
+    #[allow(unsafe_code)]
+    unsafe fn on_interrupt() {
+        if let Some(c) = UART_ERRORS.get(1) {
+            take_line_errors(embassy_stm32::pac::USART2, c);
+        }
+    }
+}
+
+/// Takes a DMA stream's transfer error (TEIF) before embassy's handler, which panics on it: counts it, clears it,
+/// and clears the USART's DMA request enable, so that the ring-buffered receiver restarts its stream on its next
+/// read (a transmit stream's write times out in the tasks and is counted there).
+pub struct DmaErrors;
+
+/// TEIF of `stream` (0–7) of `dma`: clears it and the USART's DMAR if it was set; counts it.
+fn take_dma_error(
+    dma: embassy_stm32::pac::dma::Dma,
+    stream: usize,
+    usart: embassy_stm32::pac::usart::Usart,
+) {
+    let (reg, bit) = (stream / 4, stream % 4);
+    if dma.isr(reg).read().teif(bit) {
+        dma.ifcr(reg).write(|w| w.set_teif(bit, true));
+        usart.cr3().modify(|w| w.set_dmar(false));
+        DMA_ERRORS.fetch_add(1, core::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+macro_rules! dma_errors {
+    ($($irq:ident => $dma:ident, $stream:literal, $usart:ident;)*) => {
+        $(
+            impl embassy_stm32::interrupt::typelevel::Handler<embassy_stm32::interrupt::typelevel::$irq>
+                for DmaErrors
+            {
+                #[allow(unsafe_code)]
+                unsafe fn on_interrupt() {
+                    take_dma_error(embassy_stm32::pac::$dma, $stream, embassy_stm32::pac::$usart);
+                }
+            }
+        )*
+    };
+}
+
+dma_errors! {
+    DMA1_STREAM5 => DMA1, 5, USART2;
+    DMA1_STREAM6 => DMA1, 6, USART2;
+    DMA2_STREAM2 => DMA2, 2, USART1;
+    DMA2_STREAM7 => DMA2, 7, USART1;
+}
 
 // FPGA_BAUD: USART1 on PCLK2 = 84 MHz, 84 MHz / 2 Mbaud = 42, exact with 16× oversampling.
 // Budget: 240-byte frames at 604.8 /s = 1.452 Mbit/s with start/stop bits = 73 % of the line.
@@ -92,14 +214,7 @@ static FLASH_REGION1: StaticCell<BlockingMutex<NoopRawMutex, RefCell<Flash32>>> 
 /// Status LED (open drain, see the module docs): `embedded_hal::digital::OutputPin`.
 pub type Led = OutputOpenDrain<'static>;
 
-/// Where the system clock comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, defmt::Format)]
-pub enum ClockSource {
-    /// 8 MHz crystal.
-    Hse8MHz,
-    /// Internal RC (the crystal did not start).
-    HsiFallback,
-}
+pub use shared::telemetry::ClockSource;
 
 /// The core clock (`app::CoreClock`): HCLK = SYSCLK = 168 MHz, or 84 MHz in Idle through the AHB prescaler, with
 /// the APB prescalers halved with it so that every peripheral clock stays: PCLK1 42 MHz, PCLK2 84 MHz, the APB1
@@ -271,6 +386,10 @@ impl core::borrow::BorrowMut<PipelineMemory> for MemoryCcm {
 /// Everything the application gets from the board.
 pub struct Board {
     pub clock: ClockSource,
+    /// RCC_CR.HSITRIM in force.
+    pub hsi_trim: u8,
+    /// The brown-out reset level of the option bytes (0 off, 1–3).
+    pub bor_level: u8,
     pub fpga_rx: FpgaRx,
     pub fpga_tx: FpgaTx,
     pub bus_rx: BusRx,
@@ -357,18 +476,30 @@ static FPGA_RX_RING: ConstStaticCell<[u8; FPGA_RX_RING_LEN]> =
 static BUS_RX_RING: ConstStaticCell<[u8; BUS_RX_RING_LEN]> =
     ConstStaticCell::new([0; BUS_RX_RING_LEN]);
 
-/// Brings up clocks and peripherals. Call once (it takes embassy's `Peripherals` singleton).
-pub fn init() -> Board {
-    let clock = if hse_starts() {
-        ClockSource::Hse8MHz
+/// Brings up clocks and peripherals. Call once (it takes embassy's `Peripherals` singleton). After a clock failure
+/// in the last boot (`after_clock_failure`) the crystal is not tried: the clock security system saw it fail.
+pub fn init(after_clock_failure: bool) -> Board {
+    let clock = if after_clock_failure {
+        ClockSource::HsiAfterClockFailure
+    } else if hse_starts() {
+        ClockSource::Hse
     } else {
-        ClockSource::HsiFallback
+        ClockSource::Hsi
     };
     let p = embassy_stm32::init(clock_config(clock));
+    if clock == ClockSource::Hse {
+        // The clock security system: a crystal that stops from now on switches SYSCLK to the HSI and raises the NMI
+        // (`fault.rs`: recorded, reset, the next boot on the HSI). RM0090 §7.2.7.
+        embassy_stm32::pac::RCC.cr().modify(|w| w.set_csson(true));
+    }
     enable_flash_accelerator();
+    set_interrupt_priorities();
 
     let mut fpga_cfg = usart::Config::default();
     fpga_cfg.baudrate = FPGA_BAUD;
+    // ONEBIT: one sample per bit instead of three, which widens the receiver's clock tolerance (RM0090 §30.3.5) —
+    // the link's margin on the HSI — at the price of noise detection (`docs/firmware.md`, clock budget).
+    fpga_cfg.assume_noise_free = true;
     // Configuration errors here are programming errors of this file, found on the first boot: the pins, DMA
     // streams and baud rates are constants, so `new` fails on every boot or on none, and no input reaches it.
     #[allow(clippy::expect_used)]
@@ -382,6 +513,7 @@ pub fn init() -> Board {
 
     let mut bus_cfg = usart::Config::default();
     bus_cfg.baudrate = BUS_BAUD;
+    bus_cfg.assume_noise_free = true;
     // As for USART1: constant configuration, no input.
     #[allow(clippy::expect_used)]
     let bus = Uart::new(
@@ -430,8 +562,11 @@ pub fn init() -> Board {
     capture.enable(timer::Channel::Ch1);
     let pps = Pps(capture);
 
+    let hsi_trim = embassy_stm32::pac::RCC.cr().read().hsitrim();
     Board {
         clock,
+        hsi_trim,
+        bor_level: bor_level(),
         fpga_rx,
         fpga_tx,
         bus_rx,
@@ -443,6 +578,86 @@ pub fn init() -> Board {
         pps,
     }
 }
+
+/// The brown-out reset level programmed in the option bytes (FLASH_OPTCR.BOR_LEV: 11 off, 10 level 1 = 2.2 V,
+/// 01 level 2 = 2.5 V, 00 level 3 = 2.8 V; RM0090 §3.6.1) as 0 (off) to 3. Setting it is a manufacturing step
+/// (`docs/firmware.md`, power).
+fn bor_level() -> u8 {
+    let lev = embassy_stm32::pac::FLASH.optcr().read().bor_lev();
+    3u8.saturating_sub(lev & 0b11)
+}
+
+/// Interrupt priorities, set on purpose (embassy leaves every one at 0): the faults and the NMI above all; SysTick,
+/// the deadline monitor, next (it must see a handler that never returns); then the FPGA link (2 Mbaud: its DMA ring
+/// and idle-line interrupt), the time driver, and last the bus and the PPS capture. Four levels: an interrupt frame
+/// nests at most once per level (`tools/fw-check/stack.py` models it). Every DMA stream interrupt embassy enabled
+/// without a binding here is masked (it would land in `DefaultHandler`).
+fn set_interrupt_priorities() {
+    use embassy_stm32::interrupt::{Interrupt, InterruptExt, Priority};
+    use embassy_stm32::pac::Interrupt as I;
+    // SAFETY of the masks below: masking an interrupt cannot break memory safety.
+    for irq in [
+        I::DMA1_STREAM0,
+        I::DMA1_STREAM1,
+        I::DMA1_STREAM2,
+        I::DMA1_STREAM3,
+        I::DMA1_STREAM4,
+        I::DMA1_STREAM7,
+        I::DMA2_STREAM0,
+        I::DMA2_STREAM1,
+        I::DMA2_STREAM3,
+        I::DMA2_STREAM4,
+        I::DMA2_STREAM5,
+        I::DMA2_STREAM6,
+    ] {
+        cortex_m::peripheral::NVIC::mask(irq);
+        cortex_m::peripheral::NVIC::unpend(irq);
+    }
+    for (irq, prio) in [
+        (Interrupt::USART1, Priority::P2),
+        (Interrupt::DMA2_STREAM2, Priority::P2),
+        (Interrupt::DMA2_STREAM7, Priority::P2),
+        (Interrupt::TIM5, Priority::P3),
+        (Interrupt::USART2, Priority::P4),
+        (Interrupt::DMA1_STREAM5, Priority::P4),
+        (Interrupt::DMA1_STREAM6, Priority::P4),
+        (Interrupt::TIM2, Priority::P4),
+    ] {
+        irq.set_priority(prio);
+    }
+}
+
+/// SysTick every [`MONITOR_PERIOD_MS`] at HCLK / 8 (21 MHz streaming; 10.5 MHz and 200 ms in `Idle`), at priority
+/// 1: the deadline monitor (`fault.rs`). Call once the monitor has its app.
+pub fn start_deadline_monitor() {
+    use cortex_m::peripheral::{SYST, scb::SystemHandler, syst::SystClkSource};
+    // SAFETY: SysTick is used by nothing else (embassy's time is TIM5); the priority change cannot break memory
+    // safety (no priority-based critical section is in use: they are all interrupt-disabling).
+    #[allow(unsafe_code)]
+    unsafe {
+        let mut cp = cortex_m::Peripherals::steal();
+        cp.SCB.set_priority(SystemHandler::SysTick, 0x10);
+        let syst: &mut SYST = &mut cp.SYST;
+        syst.set_clock_source(SystClkSource::External);
+        syst.set_reload(SYSCLK_HZ / 8 / 1000 * MONITOR_PERIOD_MS - 1);
+        syst.clear_current();
+        syst.enable_interrupt();
+        syst.enable_counter();
+    }
+}
+
+/// The HSI's trim (RCC_CR.HSITRIM), for the housekeeping task's trim loop while the core runs on the HSI.
+pub const HSI_TRIM: firmware::app::HsiTrim = firmware::app::HsiTrim {
+    read: || embassy_stm32::pac::RCC.cr().read().hsitrim(),
+    write: |trim| {
+        embassy_stm32::pac::RCC
+            .cr()
+            .modify(|w| w.set_hsitrim(trim.min(31)))
+    },
+};
+
+/// The deadline monitor's period at full clock, ms.
+pub const MONITOR_PERIOD_MS: u32 = 100;
 
 /// Prefetch and the ART caches on (RM0090 §3.5.2: reset each cache while it is off, then enable).
 fn enable_flash_accelerator() {
@@ -542,9 +757,11 @@ fn hse_starts() -> bool {
 
 fn clock_config(src: ClockSource) -> embassy_stm32::Config {
     let mut config = embassy_stm32::Config::default();
+    // The flight build keeps the debug port off in sleep (embassy's default keeps it on, and draws for it).
+    config.enable_debug_during_sleep = false;
     let rcc = &mut config.rcc;
     let prediv = match src {
-        ClockSource::Hse8MHz => {
+        ClockSource::Hse => {
             rcc.hse = Some(Hse {
                 freq: Hertz(8_000_000),
                 mode: HseMode::Oscillator,
@@ -552,7 +769,7 @@ fn clock_config(src: ClockSource) -> embassy_stm32::Config {
             rcc.pll_src = PllSource::HSE;
             PllPreDiv::DIV4 // 2 MHz VCO input
         }
-        ClockSource::HsiFallback => {
+        ClockSource::Hsi | ClockSource::HsiAfterClockFailure => {
             rcc.pll_src = PllSource::HSI;
             PllPreDiv::DIV8 // 2 MHz VCO input
         }

@@ -6,6 +6,7 @@
 //! - [`layout`]: the STM32F405 facts the loops and the models both need (flash sectors, line rates, ring sizes,
 //!   the longest store stall, the stack the flight build leaves).
 //! - [`mcu_sensors`]: the MCU's temperature and VDDA from its ADC codes and factory calibration.
+//! - [`resets`]: the reset history kept across resets, and the crash-loop counter.
 //! - [`tasks`]: the task table, which loop each task runs with which edges of the board, for both builds.
 //! - [`sim`] (host): the clock and executor (virtual or real time), UART lines, the flash model.
 #![no_std]
@@ -24,6 +25,7 @@ mod log;
 pub mod app;
 pub mod layout;
 pub mod mcu_sensors;
+pub mod resets;
 #[cfg(feature = "sim")]
 pub mod sim;
 pub mod tasks;

@@ -9,6 +9,8 @@
 
 mod board;
 mod fault;
+#[cfg(feature = "fault-injection")]
+mod inject;
 
 use embassy_executor::Spawner;
 use firmware::app::{self, App};
@@ -32,13 +34,14 @@ type FwApp = App<board::MemoryCcm>;
 fn panic(info: &core::panic::PanicInfo) -> ! {
     use core::sync::atomic::{AtomicBool, Ordering};
     static PANICKED: AtomicBool = AtomicBool::new(false);
-    fault::record(shared::telemetry::FaultKind::Panic, 0, 0);
-    // Logged once: a panic inside the logger (defmt-rtt panics on a re-entrant acquire) comes back here, and
-    // logging again would recurse until the stack overflows (`tools/fw-check/stack.py` found the cycle).
-    if !PANICKED.swap(true, Ordering::Relaxed) {
-        defmt::error!("panic: {}", defmt::Display2Format(info));
+    // Logged once, and only the location (no `core::fmt`: its formatting machinery recurses, and the message may
+    // be a formatted one): a panic inside the logger (defmt-rtt panics on a re-entrant acquire) comes back here.
+    if !PANICKED.swap(true, Ordering::Relaxed)
+        && let Some(l) = info.location()
+    {
+        defmt::error!("panic at {=str}:{=u32}", l.file(), l.line());
     }
-    cortex_m::peripheral::SCB::sys_reset()
+    fault::panic(info.location())
 }
 
 /// The whole state of the tasks (15 KiB), built at compile time (`.data`): never on the stack.
@@ -63,6 +66,11 @@ type Watchdog = board::Watchdog;
 type Led = board::Led;
 type Pps = board::Pps;
 
+/// The tasks a safe-mode boot runs: the bus, housekeeping (with the reset history) and the watchdog.
+fn essential(task: &str) -> bool {
+    matches!(task, "bus_rx" | "bus_tx" | "watchdog" | "housekeeping")
+}
+
 /// One embassy task per line of the table, each a call of its loop.
 macro_rules! define_tasks {
     ({} |$app:ident| $($name:ident($($edge:ident: $ty:ty),*) => $body:expr;)*) => {
@@ -78,27 +86,49 @@ macro_rules! define_tasks {
 
 /// Spawns each task with its edges.
 macro_rules! spawn_tasks {
-    ({ $spawner:ident, $app_val:ident, $edges:ident } |$app:ident| $($name:ident($($edge:ident: $ty:ty),*) => $body:expr;)*) => {
-        $($spawner.spawn(defmt::unwrap!($name($app_val, $($edges.$edge),*)));)*
+    ({ $spawner:ident, $app_val:ident, $edges:ident, $safe:ident } |$app:ident| $($name:ident($($edge:ident: $ty:ty),*) => $body:expr;)*) => {
+        $(
+            if !$safe || essential(stringify!($name)) {
+                $spawner.spawn(defmt::unwrap!($name($app_val, $($edges.$edge),*)));
+            }
+        )*
     };
 }
 
 firmware::task_table!(define_tasks {});
 
+/// The fault injection of the `fault-injection` build (`inject.rs`).
+#[cfg(feature = "fault-injection")]
+#[embassy_executor::task]
+async fn inject(app: &'static FwApp, kind: u32) {
+    inject::run(app, kind).await
+}
+
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     // First of all, so that a hang anywhere in init (a crystal that stops while embassy waits for it) resets.
     let wdt = board::start_watchdog();
+    #[cfg(feature = "fault-injection")]
+    let injected = inject::take();
+    let reset_flags = board::take_reset_flags();
+    // The reset history first: it files what ended the last boot, and says whether this one is a crash loop's.
+    let state = fault::boot(reset_flags);
+    let b = board::init(state.after_clock_failure);
     let boot = app::BootInfo {
-        reset_flags: board::take_reset_flags(),
-        fault: fault::take(),
+        reset_flags,
+        boot_count: state.boot_count,
+        safe_mode: state.safe_mode,
+        clock_source: Some(b.clock),
+        hsi_trim: b.hsi_trim,
+        bor_level: Some(b.bor_level),
     };
-    let b = board::init();
     defmt::info!(
-        "boot: clock {}, reset flags {=u8:#x}, fault {}",
+        "boot {=u32}: clock {}, reset flags {=u8:#x}, BOR level {=u8}, safe mode {=bool}",
+        boot.boot_count,
         b.clock,
         boot.reset_flags,
-        boot.fault
+        b.bor_level,
+        boot.safe_mode,
     );
 
     // The state was built at compile time (`APP`); the pipeline memory is zeroed in place in CCM RAM on its first use: no
@@ -108,12 +138,27 @@ async fn main(spawner: Spawner) {
         boot,
         cycles: Some(b.cycles),
         mcu_sensors: Some(board::mcu_sensors),
+        resets: Some(&fault::LOG),
+        uart_errors: Some(board::uart_errors),
+        // On the HSI, housekeeping trims it against the FPGA's crystal-timed frames.
+        hsi_trim: (b.clock != board::ClockSource::Hse).then_some(board::HSI_TRIM),
     });
+    app.pipeline.get_mut().set_boot_count(state.boot_count);
     let store = STORE.init(defmt::unwrap!(
         CalStore::new(b.calib).map_err(|_| "calibration flash geometry")
     ));
-    app::load_calibration(store, app.pipeline.get_mut());
+    // Safe mode boots on the factory calibration: a stored table may be what crashes it.
+    if !state.safe_mode {
+        app::load_calibration(store, app.pipeline.get_mut());
+    }
     let app: &'static FwApp = app;
+    let safe = state.safe_mode;
+    if safe {
+        // Bus RX, bus TX, watchdog, housekeeping: the tasks `essential` keeps.
+        app.set_monitored(0b0110_1100);
+    }
+    fault::monitor(app);
+    board::start_deadline_monitor();
 
     let edges = Edges {
         fpga_rx: b.fpga_rx,
@@ -129,6 +174,11 @@ async fn main(spawner: Spawner) {
     firmware::task_table!(spawn_tasks {
         spawner,
         app,
-        edges
+        edges,
+        safe
     });
+    #[cfg(feature = "fault-injection")]
+    if injected != 0 {
+        spawner.spawn(defmt::unwrap!(inject(app, injected)));
+    }
 }

@@ -13,7 +13,6 @@ mod common;
 use common::{Ground, Sat, frame_period, frames, healths, housekeeping, table, upload_commands};
 use embassy_time::{Duration, Instant, Timer};
 use embedded_io_async::Write as _;
-use firmware::app::Task;
 use firmware::sim::clock::settle;
 use firmware::sim::flash as simflash;
 use firmware::sim::line::SimRxError;
@@ -21,6 +20,7 @@ use host_test::replay::{ReplayOptions, replay};
 use shared::bus::BusConfig;
 use shared::calib::CalibrationTable;
 use shared::pipeline::{ALLAN_CHANNELS, PipelineConfig};
+use shared::telemetry::TaskId;
 use shared::telemetry::{Ack, CalSource, Command, PROTOCOL_VERSION, Reject, Telemetry, peek_tag};
 use shared::wire::FpgaControl;
 use shared::wire::frame::{FRAME_LEN, GROUPS};
@@ -118,9 +118,12 @@ fn slow_bus_drops_and_counts_telemetry_but_never_holds_up_the_link() {
             // The FPGA never waits: bytes the ring cannot take are lost and counted as overruns.
             board.fpga_rx.push(f);
         }
-        let link_ticks = app.progress(Task::Link);
+        let link_beat = app.last_beat_ms(TaskId::Link);
         Timer::after(Duration::from_millis(500)).await;
-        assert!(app.progress(Task::Link) > link_ticks, "link task alive");
+        assert!(
+            app.last_beat_ms(TaskId::Link) > link_beat,
+            "link task alive"
+        );
         ground.receive(board);
         ground.bytes.len()
     });
@@ -348,12 +351,12 @@ fn power_cut_at_every_flash_step_of_a_commit_keeps_old_or_new() {
     assert!(outcomes[0] > 0 && outcomes[1] > 0, "{outcomes:?}");
 }
 
-/// A task that stops making progress stops the watchdog feed (the IWDG then resets the MCU); while all run, it is
-/// fed every period.
+/// A bus line that stops taking bytes no longer stalls the transmitter: each frame that cannot leave within
+/// `BUS_TX_TIMEOUT` is dropped and counted, every task keeps its heartbeat, and the watchdog keeps feeding.
 #[test]
-fn a_stalled_task_stops_the_watchdog_feed() {
-    // The bus transmitter stalls when the line stops taking bytes: the ground drains it for 2 s, then stops and asks
-    // for a detailed health report (17 messages, more than the 256-byte line holds).
+fn a_stuck_bus_line_costs_frames_not_the_watchdog() {
+    // The ground drains the line for 2 s, then stops and asks for a detailed health report (17 messages, more than
+    // the 256-byte line holds).
     let mut sat = Sat::fresh();
     sat.board.bus_tx = firmware::sim::line::Line::new(256);
     let ground = Ground::new();
@@ -364,12 +367,55 @@ fn a_stalled_task_stops_the_watchdog_feed() {
         }
         let before = board.feeds();
         ground.send(board, 1, Command::HealthRequest { detail: true });
-        Timer::after(Duration::from_secs(3)).await;
+        Timer::after(Duration::from_secs(4)).await;
         (before, board.feeds() - before)
     });
-    // 250 ms period: about 8 feeds in 2 s (the first tick has nothing to compare with).
+    // 250 ms period: about 8 feeds in 2 s, 16 in 4 s.
     assert!(fed_before >= 6, "{fed_before}");
-    assert!(fed_after <= 1, "fed {fed_after} times after the stall");
+    assert!(
+        fed_after >= 14,
+        "fed {fed_after} times in the 4 s after the line stuck"
+    );
+    let c = sat.app.counters();
+    assert!(c.bus_tx_errors >= 4, "{c:?}");
+}
+
+/// A task that hangs (awaits something that never comes) misses its deadline: the watchdog stops feeding within
+/// that deadline (the IWDG then resets the MCU), and names the task; while all beat, it feeds every period.
+#[test]
+fn a_hung_task_stops_the_watchdog_feed_within_its_deadline() {
+    let deadline_ms = firmware::app::DEADLINES_MS[6];
+    let mut sat = Sat::fresh();
+    let (fed_before, last_feed_after_ms, late) = sat.run(MINUTE, async |app, board| {
+        Timer::after(Duration::from_secs(2)).await;
+        let before = board.feeds();
+        let hang_at = Instant::now();
+        app.inject_hang(TaskId::Housekeeping);
+        // Watch the feeds for the deadline, a period (the task's next beat) and 2 s more.
+        let mut last_feed = 0;
+        let mut seen = board.feeds();
+        for _ in 0..(u64::from(deadline_ms) + 3000) / 50 {
+            Timer::after(Duration::from_millis(50)).await;
+            if board.feeds() != seen {
+                seen = board.feeds();
+                last_feed = hang_at.elapsed().as_millis();
+            }
+        }
+        (
+            before,
+            last_feed,
+            app.late_task(Instant::now().as_millis() as u32),
+        )
+    });
+    assert!(fed_before >= 6, "{fed_before}");
+    // The last beat is at most one housekeeping period (1 s) before the hang; the feed stops at most one watchdog
+    // period (250 ms) after the deadline.
+    assert!(
+        last_feed_after_ms <= u64::from(deadline_ms) + 250,
+        "fed {last_feed_after_ms} ms after the hang"
+    );
+    assert!(last_feed_after_ms >= u64::from(deadline_ms) - 1000 - 250);
+    assert_eq!(late, Some(TaskId::Housekeeping));
 }
 
 /// Injected UART errors on the FPGA link: each is counted by kind, and costs only the frames whose bytes it
@@ -687,12 +733,41 @@ fn an_fpga_restart_keeps_the_outage_on_the_time_line() {
 #[test]
 fn housekeeping_reports_the_board_and_repairs_a_corrupted_calibration() {
     use firmware::app::{BootInfo, FW_COMMIT, Platform};
+    use firmware::resets::{Kind, Pending, Persist};
     use firmware::sim::line::SimRxError;
-    use shared::telemetry::{FaultKind, FaultRecord, StoreOutcome};
-    let fault = FaultRecord {
-        kind: FaultKind::HardFault,
-        pc: 0x0800_C123,
-        cfsr: 0x0000_8200,
+    use shared::telemetry::{HardFaultInfo, ResetCause, ResetRecord, StoreOutcome};
+    // The reset history as the flight code leaves it: a first boot, then a HardFault 1.5 s in, then this boot
+    // (the IWDG and pin flags, as the chip would set them after `sys_reset`... here the IWDG's).
+    let mut persist = Persist::EMPTY;
+    persist.boot(0b0000_0111);
+    persist.note_uptime(1_500);
+    let words = [
+        0x0800_C123,
+        0x0800_C001,
+        0xFFFF_FFF9,
+        0x2000_0F00,
+        0x0000_8200,
+        1 << 30,
+        0x3000_0000,
+    ];
+    persist.leave(Pending::new(Kind::HardFault, 1_500, words));
+    let state = persist.boot(1 << 4);
+    let resets: &'static firmware::sim::SimResets = Box::leak(Box::new(firmware::sim::SimResets(
+        std::sync::Mutex::new(persist),
+    )));
+    let fault = ResetRecord {
+        boot: 1,
+        uptime_ms: 1_500,
+        reset_flags: 1 << 4,
+        cause: ResetCause::HardFault(HardFaultInfo {
+            pc: 0x0800_C123,
+            lr: 0x0800_C001,
+            exc_return: 0xFFFF_FFF9,
+            sp: 0x2000_0F00,
+            cfsr: 0x0000_8200,
+            hfsr: 1 << 30,
+            fault_addr: 0x3000_0000,
+        }),
     };
     let mut sat = Sat::boot_on(
         simflash::erased(),
@@ -701,8 +776,11 @@ fn housekeeping_reports_the_board_and_repairs_a_corrupted_calibration() {
         Platform {
             boot: BootInfo {
                 reset_flags: 1 << 4, // IWDG
-                fault: Some(fault),
+                boot_count: state.boot_count,
+                safe_mode: state.safe_mode,
+                ..BootInfo::default()
             },
+            resets: Some(resets),
             ..Platform::default()
         },
     );
@@ -719,9 +797,20 @@ fn housekeeping_reports_the_board_and_repairs_a_corrupted_calibration() {
         app.pipeline.lock().await.inject_calibration_bit_flip(3, 11);
         Timer::after(Duration::from_millis(2500)).await;
         ground.receive(board);
+        // Clearing names the boot the ground saw: an older one is refused, this one clears.
+        let stale = ground
+            .transact(board, 20, Command::ClearResets { boot_count: 1 })
+            .await;
+        assert_eq!(stale.result, Err(Reject::BadArgument));
+        let clear = ground
+            .transact(board, 21, Command::ClearResets { boot_count: 2 })
+            .await;
+        assert_eq!(clear.result, Ok(()));
+        Timer::after(Duration::from_millis(1100)).await;
+        ground.receive(board);
     });
     let hk = housekeeping(&ground.telemetry);
-    assert!((4..=6).contains(&hk.len()), "{} reports in ≈ 5 s", hk.len());
+    assert!((5..=8).contains(&hk.len()), "{} reports in ≈ 6 s", hk.len());
     // On a 1 s grid (one report runs late after the store's 0.5 s flash stall).
     assert!(hk.windows(2).all(|w| w[1].uptime_ms > w[0].uptime_ms));
     let first = hk[0];
@@ -730,11 +819,22 @@ fn housekeeping_reports_the_board_and_repairs_a_corrupted_calibration() {
     assert_eq!(
         (
             first.reset_flags,
-            first.fault,
+            first.boot_count,
+            first.safe_mode,
             first.fw_commit,
             first.fw_dirty
         ),
-        (1 << 4, Some(fault), FW_COMMIT.0, FW_COMMIT.1)
+        (1 << 4, 2, false, FW_COMMIT.0, FW_COMMIT.1)
+    );
+    // The history goes with every Housekeeping, the HardFault on top, until the ground clears it.
+    let histories = common::reset_histories(&ground.telemetry);
+    assert_eq!(histories.len(), hk.len());
+    assert_eq!(histories[0].records[0], Some(fault));
+    assert_eq!((histories[0].boot_count, histories[0].short_runs), (2, 1));
+    let cleared = histories.last().unwrap();
+    assert_eq!(
+        (cleared.boot_count, cleared.short_runs, cleared.records[0]),
+        (2, 0, None)
     );
     assert_eq!(first.last_store, StoreOutcome::None);
     assert_eq!(

@@ -214,6 +214,8 @@ impl HostCore {
             Output::Fpga(c) => self.out.fpga.push(c),
             // The host sends no uploads, so none is ever committed.
             Output::PersistCalibration { .. } => {}
+            // The host keeps no reset history.
+            Output::ClearResets => {}
         }
     }
 

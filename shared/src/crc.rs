@@ -4,20 +4,21 @@
 //! xorout `0xFFFFFFFF`, check (`"123456789"`) `0xE3069283`: the catalogue's CRC-32/ISCSI. libcsp's `csp_crc32` is
 //! this CRC.
 //!
-//! Computed by the `crc` crate (`no_std`, no `unsafe`) with sixteen 1 KiB tables ("slicing-by-16"), built at compile
-//! time: on the Cortex-M4 a 240-byte frame costs ≈ 1.2 k fewer instructions than the one-table loop this module
-//! had (`mcu-bench`), for 15 KiB more flash, which the F405 has. This module only names the algorithm and keeps the
+//! Computed by the `crc` crate (`no_std`, no `unsafe`) with its one 1 KiB table, built at compile time. Its
+//! sixteen-table variant ("slicing-by-16") saves ≈ 300 instructions per 240-byte frame on the Cortex-M4 (`mcu-bench`,
+//! `docs/performance.md`) for 15 KiB more flash: the flash went to the fault handling and the reset history (issue
+//! 39), which the 128 KiB budget could not otherwise hold. This module only names the algorithm and keeps the
 //! incremental interface the callers use.
 
 use crc::{CRC_32_ISCSI, Crc, Digest, Table};
 
 /// The algorithm with its tables.
-static CASTAGNOLI: Crc<u32, Table<16>> = Crc::<u32, Table<16>>::new(&CRC_32_ISCSI);
+static CASTAGNOLI: Crc<u32, Table<1>> = Crc::<u32, Table<1>>::new(&CRC_32_ISCSI);
 
 /// Incremental CRC-32C over several slices.
 #[derive(Clone)]
 pub struct Crc32c {
-    digest: Digest<'static, u32, Table<16>>,
+    digest: Digest<'static, u32, Table<1>>,
 }
 
 impl core::fmt::Debug for Crc32c {

@@ -107,6 +107,9 @@ pub enum Output {
         /// The `CalCommit`'s tag.
         tag: u16,
     },
+    /// Clear the platform's reset history and crash-loop counter (`ClearResets`, acknowledged: its boot count
+    /// matched [`Pipeline::set_boot_count`]'s).
+    ClearResets,
 }
 
 /// One frame's groups between the stages: signed ADC counts, then calibrated axes.
@@ -170,6 +173,8 @@ pub struct Pipeline<B> {
     invalid_frames: u32,
     telemetry_dropped: u32,
     commands: [u32; 2],
+    /// The platform's boot counter (`ClearResets` must name it); `None` where there is no reset history.
+    boot_count: Option<u32>,
 }
 
 impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
@@ -208,7 +213,14 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
             invalid_frames: 0,
             telemetry_dropped: 0,
             commands: [0; 2],
+            boot_count: None,
         }
+    }
+
+    /// Tells the pipeline the platform's boot counter, which a `ClearResets` command must name to be accepted
+    /// (without one, every `ClearResets` is refused with `BadArgument`).
+    pub fn set_boot_count(&mut self, boot_count: u32) {
+        self.boot_count = Some(boot_count);
     }
 
     /// Puts a calibration in force (restarting the statistics that depend on it). Everything is reset in place and
@@ -270,6 +282,11 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
     /// Where the calibration in force came from.
     pub fn calibration_source(&self) -> CalSource {
         self.cal.source
+    }
+
+    /// The configuration it was built with.
+    pub fn config(&self) -> &PipelineConfig {
+        &self.config
     }
 
     /// Link statistics.

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize, de::DeserializeOwned};
 
 /// Version of the message set; the first byte of every message. 2: `FusedReport::unix_us` (spacecraft time in every
 /// fused report once `SetTime` set it).
-pub const PROTOCOL_VERSION: u8 = 3;
+pub const PROTOCOL_VERSION: u8 = 4;
 /// Largest calibration chunk in one command, bytes.
 pub const CAL_CHUNK_MAX: usize = 192;
 /// Largest encoded message, bytes (fits libcsp's default KISS MTU with room to spare).
@@ -141,26 +141,134 @@ pub enum StoreOutcome {
     Failed,
 }
 
-/// What stopped the firmware before this boot, as its fault handler recorded it in RAM that survives a reset.
+/// How many [`ResetRecord`]s the firmware keeps and reports, newest first.
+pub const RESET_HISTORY_LEN: usize = 4;
+
+/// One reset in the history the firmware keeps across resets (no-init RAM) and reports in every [`ResetHistory`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct FaultRecord {
-    /// What happened.
-    pub kind: FaultKind,
-    /// Program counter of the faulting instruction (0 for a panic).
-    pub pc: u32,
-    /// SCB's configurable fault status register (CFSR) at the fault (0 for a panic).
-    pub cfsr: u32,
+pub struct ResetRecord {
+    /// The boot that ended (the boot counter's value while it ran).
+    pub boot: u32,
+    /// Its uptime when the record was written, ms (for a reset without a record: the last uptime the running
+    /// firmware noted, at most 250 ms old).
+    pub uptime_ms: u32,
+    /// The reset flags the next boot found (as [`HousekeepingReport::reset_flags`]).
+    pub reset_flags: u8,
+    /// What stopped it.
+    pub cause: ResetCause,
 }
 
-/// Kinds of [`FaultRecord`].
+/// What ended a boot.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum FaultKind {
-    /// A HardFault (escalated bus, memory or usage fault; with flip-link, also a stack overflow).
-    HardFault,
-    /// A panic (the release firmware resets on one).
-    Panic,
+pub enum ResetCause {
+    /// No record was written: a power-on or brown-out that kept RAM, the reset pin, or a lock-up that the IWDG
+    /// ended (the reset flags tell which).
+    Unknown,
+    /// A HardFault (an escalated bus, memory or usage fault; with flip-link, also a stack overflow). The handler
+    /// runs on a stack of its own, so it records even when the fault was the stack's.
+    HardFault(HardFaultInfo),
+    /// The clock security system saw the crystal fail (NMI with RCC_CIR.CSSF): the next boot runs on the HSI.
+    ClockFailure,
+    /// An NMI without a clock failure.
+    Nmi,
+    /// An exception or interrupt without a handler of its own (`DefaultHandler`): its exception number (IPSR;
+    /// interrupt n is n + 16).
+    UnhandledIrq {
+        /// IPSR at entry.
+        exception: u16,
+    },
+    /// A panic: where.
+    Panic {
+        /// Source line.
+        line: u32,
+        /// CRC-32C of the source file's path (the ground maps it to a name with the same build's sources).
+        file_crc: u32,
+    },
+    /// A task missed its deadline (its heartbeat stopped); the IWDG reset followed.
+    Watchdog {
+        /// The first late task.
+        task: TaskId,
+        /// Where thread code was when the deadline monitor (SysTick) saw it: a task spinning without yielding is
+        /// found here; a task waiting forever leaves the executor's idle loop.
+        pc: u32,
+    },
+    /// The ground asked for the reset (none yet; reserved so that the cause is never `Unknown` for it).
+    Commanded,
+}
+
+/// The fault registers a HardFault leaves (ARMv7-M ARM B3.2.15–B3.2.18) and the stacked context.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct HardFaultInfo {
+    /// Stacked PC (0 when the frame could not be read: the fault happened while stacking).
+    pub pc: u32,
+    /// Stacked LR.
+    pub lr: u32,
+    /// EXC_RETURN of the handler (which stack, FPU frame or not).
+    pub exc_return: u32,
+    /// The stack pointer the fault left (the frame's address).
+    pub sp: u32,
+    /// CFSR (MMFSR | BFSR << 8 | UFSR << 16).
+    pub cfsr: u32,
+    /// HFSR (FORCED, VECTTBL).
+    pub hfsr: u32,
+    /// BFAR if CFSR.BFARVALID, else MMFAR if CFSR.MMARVALID, else 0.
+    pub fault_addr: u32,
+}
+
+/// The firmware's tasks, as the watchdog names them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum TaskId {
+    /// FPGA frames in.
+    Link,
+    /// Control messages to the FPGA.
+    FpgaCtrl,
+    /// Bus bytes in.
+    BusRx,
+    /// Bus bytes out.
+    BusTx,
+    /// The calibration store.
+    Storage,
+    /// The watchdog feeder.
+    Watchdog,
+    /// Housekeeping.
+    Housekeeping,
+    /// The PPS input.
+    Pps,
+    /// A task number this build does not know.
+    Other(u8),
+}
+
+/// Where the system clock comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ClockSource {
+    /// The 8 MHz crystal (HSE) through the PLL.
+    Hse,
+    /// The internal 16 MHz RC (HSI) through the PLL: the crystal did not start at boot.
+    Hsi,
+    /// The HSI, because the clock security system saw the crystal fail in the boot before this one.
+    HsiAfterClockFailure,
+}
+
+/// The reset history (appended message, sent with every [`HousekeepingReport`]): every way the firmware stopped,
+/// kept across resets until the ground clears it with `ClearResets` (acknowledged), and the crash-loop state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ResetHistory {
+    /// Boots since the history was last found invalid (a power-on that lost RAM) — never cleared by command.
+    pub boot_count: u32,
+    /// Consecutive resets that came less than the short-run time after their boot (the crash-loop counter).
+    pub short_runs: u8,
+    /// This boot is in safe mode (the crash-loop counter reached its limit): factory calibration, no FPGA tasks.
+    pub safe_mode: bool,
+    /// Records dropped because the history was full, since the last clear.
+    pub dropped: u32,
+    /// The last resets, newest first (`None` past the last one).
+    pub records: [Option<ResetRecord>; RESET_HISTORY_LEN],
 }
 
 /// Bus statistics (wrapping u32), counted by [`crate::bus::BusNode`].
@@ -200,8 +308,22 @@ pub struct HousekeepingReport {
     /// Reset flags at boot (RCC_CSR bits 25–31 shifted down: bit 0 BOR, 1 PIN, 2 POR, 3 software, 4 IWDG,
     /// 5 WWDG, 6 low-power).
     pub reset_flags: u8,
-    /// The fault recorded before this boot, if any.
-    pub fault: Option<FaultRecord>,
+    /// Boots counted in the reset history ([`ResetHistory::boot_count`]; 0 where there is none, e.g. the SITL).
+    pub boot_count: u32,
+    /// Running in safe mode after a crash loop ([`ResetHistory::safe_mode`]).
+    pub safe_mode: bool,
+    /// Where the system clock comes from (`None`: not known, e.g. the SITL).
+    pub clock_source: Option<ClockSource>,
+    /// The HSI trim in force (RCC_CR.HSITRIM, 0–31, factory default 16).
+    pub hsi_trim: u8,
+    /// On the HSI: its error against the FPGA's crystal over the last trim window, ppm (positive: fast; `None`
+    /// on the crystal, or before a window of streamed frames).
+    pub hsi_error_ppm: Option<i32>,
+    /// The brown-out reset level in the option bytes (0: off, below 1.8 V; 1: 2.2 V; 2: 2.5 V; 3: 2.8 V).
+    pub bor_level: Option<u8>,
+    /// Calibration stores refused because VDD was below the x32 programming minimum (2.7 V, measured with
+    /// VREFINT).
+    pub stores_refused_low_vdd: u32,
     /// Share of CPU time the link task spent processing frames over the last period, ‰ (DWT cycle counter).
     pub core_load_permille: Option<u16>,
     /// CPU cycles per processed frame over the last period.
@@ -301,6 +423,8 @@ pub enum Telemetry {
     Nav(NavReport),
     /// PPS discipline counters (appended), with every periodic Health once a PPS edge was seen.
     Pps(PpsReport),
+    /// The reset history (appended, version 4), with every Housekeeping report.
+    Resets(ResetHistory),
 }
 
 /// The PPS discipline (`Pipeline::pps`): spacecraft time re-anchored on the whole second at each accepted edge.
@@ -410,6 +534,13 @@ pub enum Command {
         /// The time.
         unix_us: u64,
     },
+    /// Clear the reset history and the crash-loop counter (appended, version 4). `boot_count` must equal the
+    /// [`ResetHistory::boot_count`] the ground last received (else `BadArgument`): records from a boot the ground
+    /// has not seen are never cleared.
+    ClearResets {
+        /// The boot counter the ground saw.
+        boot_count: u32,
+    },
 }
 
 /// Operating mode (`SetMode`).
@@ -494,7 +625,7 @@ mod tests {
         bytes.len()
     }
 
-    fn largest_telemetry() -> [Telemetry; 5] {
+    fn largest_telemetry() -> [Telemetry; 6] {
         let faults = FaultCounts {
             saturated: u32::MAX,
             stuck: u32::MAX,
@@ -563,11 +694,13 @@ mod tests {
                 fw_commit: u32::MAX,
                 fw_dirty: true,
                 reset_flags: u8::MAX,
-                fault: Some(FaultRecord {
-                    kind: FaultKind::HardFault,
-                    pc: u32::MAX,
-                    cfsr: u32::MAX,
-                }),
+                boot_count: u32::MAX,
+                safe_mode: true,
+                clock_source: Some(ClockSource::HsiAfterClockFailure),
+                hsi_trim: u8::MAX,
+                hsi_error_ppm: Some(i32::MIN),
+                bor_level: Some(u8::MAX),
+                stores_refused_low_vdd: u32::MAX,
                 core_load_permille: Some(u16::MAX),
                 core_cycles_per_frame: Some(u32::MAX),
                 mcu_temp_cdeg: Some(i16::MIN),
@@ -608,6 +741,26 @@ mod tests {
                 bridged: u16::MAX,
                 clipped: u16::MAX,
             }),
+            Telemetry::Resets(ResetHistory {
+                boot_count: u32::MAX,
+                short_runs: u8::MAX,
+                safe_mode: true,
+                dropped: u32::MAX,
+                records: [Some(ResetRecord {
+                    boot: u32::MAX,
+                    uptime_ms: u32::MAX,
+                    reset_flags: u8::MAX,
+                    cause: ResetCause::HardFault(HardFaultInfo {
+                        pc: u32::MAX,
+                        lr: u32::MAX,
+                        exc_return: u32::MAX,
+                        sp: u32::MAX,
+                        cfsr: u32::MAX,
+                        hfsr: u32::MAX,
+                        fault_addr: u32::MAX,
+                    }),
+                }); RESET_HISTORY_LEN],
+            }),
         ]
     }
 
@@ -641,7 +794,7 @@ mod tests {
 
     #[test]
     fn known_encoding() {
-        // version 3, tag 300 = varint AC 02, variant 1 (SetDecimation), 15.
+        // version 4, tag 300 = varint AC 02, variant 1 (SetDecimation), 15.
         let mut buf = [0u8; 16];
         let bytes = encode(
             &CommandEnvelope {
@@ -651,7 +804,7 @@ mod tests {
             &mut buf,
         )
         .unwrap();
-        assert_eq!(bytes, [3, 0xAC, 0x02, 1, 15]);
+        assert_eq!(bytes, [4, 0xAC, 0x02, 1, 15]);
         assert_eq!(peek_tag(bytes), 300);
     }
 
@@ -659,19 +812,19 @@ mod tests {
     fn typed_errors() {
         assert_eq!(decode::<CommandEnvelope>(&[]), Err(DecodeError::Empty));
         assert_eq!(
-            decode::<CommandEnvelope>(&[2, 0, 0]),
-            Err(DecodeError::Version(2))
+            decode::<CommandEnvelope>(&[3, 0, 0]),
+            Err(DecodeError::Version(3))
         ); // the previous version
         assert_eq!(
-            decode::<CommandEnvelope>(&[3, 0, 0, 0]),
+            decode::<CommandEnvelope>(&[4, 0, 0, 0]),
             Err(DecodeError::Malformed)
         ); // trailing byte
         assert_eq!(
-            decode::<CommandEnvelope>(&[3, 0, 99]),
+            decode::<CommandEnvelope>(&[4, 0, 99]),
             Err(DecodeError::Malformed)
         ); // no such command
         let mut long = [0u8; 8];
-        long[..4].copy_from_slice(&[3, 0, 5, 200]); // CalChunk with a 200-byte vector announced
+        long[..4].copy_from_slice(&[4, 0, 5, 200]); // CalChunk with a 200-byte vector announced
         assert_eq!(
             decode::<CommandEnvelope>(&long),
             Err(DecodeError::Malformed)

@@ -92,6 +92,14 @@ What is NOT modelled
   an SP excursion that starts and ends inside one block without touching memory out there goes unseen (harmless
   on the chip too: only accesses fault).
 
+Scenario mode (emu.py, scenarios.py, faults.py)
+----------------------------------------------
+What this boot check leaves out is modelled there, on the same chip model: exceptions with priorities and
+preemption of running code, SysTick, NMI, HardFault from faulting accesses (CFSR/HFSR/BFAR, stacking failure), the
+IWDG counting on the LSI and resetting the core with RAM kept, SYSRESETREQ as a reset, a dead or failing crystal with
+the clock security system, USART line errors, and the F4's DMA stream restart. `scenarios.py pil` is the
+processor-in-the-loop differential test against `ground replay`; `scenarios.py faults` the fault-injection scenarios.
+
 What the assertions prove (and do not)
 -------------------------------------
 * no fault / no stack overflow: this boot path (erased calibration slots, no bus traffic) runs from reset to the

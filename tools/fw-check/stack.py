@@ -2,9 +2,10 @@
 """Worst-case stack usage of the firmware ELF (STM32F405, Cortex-M4F, thumbv7em-none-eabihf).
 
 Usage:
+    python3 tools/fw-check/boot.py target/thumbv7em-none-eabihf/fw/firmware --json boot.json   # priorities
     python3 tools/fw-check/stack.py target/thumbv7em-none-eabihf/fw/firmware \
         [--json out.json] [--markdown] [--max-percent 75] [--max-frame 8192] [--min-region BYTES]
-        [--allow-recursion SUBSTRING ...]
+        [--allow-recursion SUBSTRING ...] [--boot-json boot.json]
 
 Exit status: 0 when every check passes, 1 when a check fails (the reasons are printed last), 2 on a usage or tool
 error (no ELF, no llvm-objdump, no symbol table). Needs Python 3.11, pyelftools and llvm-objdump (Debian: llvm).
@@ -31,7 +32,14 @@ Method
    predicated (IT) SP change keeps the larger of "taken" and "not taken". The frame is the largest offset reached
    anywhere in the function. Code the flow does not reach (after a computed jump, or padding) is analysed too,
    entered at the largest offset seen so far. Any other write of SP (``sub sp, rN`` with an unknown rN,
-   ``mov sp, rN``, ``msr msp``, an SP that keeps going down round a loop) makes the function UNBOUNDED.
+   ``mov sp, rN``, ``msr msp``/``msr psp``, an SP that keeps going down round a loop) makes the function UNBOUNDED,
+   with one exception, the *entry stack switch*: a function whose first instructions, in a straight line, only
+   read registers (``mrs``, ``mov``), build constants (``movw``/``movt``/``mov #imm``) or load literals
+   (``ldr rN, [pc, #k]``, the word read from the pool) and then ``msr msp, rN`` with rN a known constant — no
+   store, push, SP write, call or branch before it. Its offsets after the switch count from the new SP. This is
+   accepted only for the HardFault or NMI vector's own function, never called, not also the handler of another
+   vector, and only when the new SP is the top of a data symbol in writable memory (``start < SP <= start +
+   size``; the usable size is SP - start) outside the main stack region; otherwise it stays UNBOUNDED.
 3. Call graph, with the SP offset at each call site (what the caller keeps live while the callee runs; a tail call
    after the epilogue runs at offset 0, so it does not add the caller's frame): ``bl``/``blx <addr>``; tail calls:
    ``b``/``b.w``/a conditional branch/``cbz`` whose target is outside the function or another function's start.
@@ -59,17 +67,35 @@ Method
 6. Roots: ``Reset`` (thread mode: init, ``main``, the executor and, through it, every task); each task poll
    function; each distinct handler in ``.vector_table`` (word 0 = initial SP, 1..15 exceptions, 16.. IRQs;
    ``DefaultHandler`` once), ``HardFault`` included (cortex-m-rt 0.7: ``HardFault`` trampoline -> ``_HardFault`` ->
-   the user's handler).
-7. Total for the one stack (MSP; thread mode uses it too) = worst thread path + (exception entry + worst handler
-   other than Reset/HardFault) + (exception entry + worst HardFault path) [+ (entry + NMI) when NMI has a handler
-   of its own]. Exception entry = 26 words (FPU on: lazy stacking reserves S0-S15/FPSCR) = 104 B + 4 B alignment
-   pad = 108 B. Assumptions: all Embassy interrupts share one priority, so handlers do not nest among themselves;
-   a HardFault can preempt a handler (a fault inside an ISR); an NMI that is ``DefaultHandler`` (spins forever)
-   counts among the handlers.
-8. Region = ``_stack_start`` - ``_stack_end`` (flip-link puts the stack at the bottom of RAM).
+   the user's handler; this firmware: its own assembly ``HardFault`` that moves MSP to ``FAULT_STACK`` and
+   tail-calls ``fdir_hard_fault``, see 2.).
+7. Total for the main stack (MSP; thread mode uses it too) = worst thread path + Σ over the distinct preemption
+   levels, highest priority first, of (deepest handler of the level + exception entry) + HardFault + (NMI + entry).
+   Exception entry = 26 words (FPU on: lazy stacking reserves S0-S15/FPSCR) = 104 B + 4 B alignment pad = 108 B.
+   Levels: a handler preempts only a lower level, so one frame nests per distinct level; handlers of one level do
+   not nest among themselves. Priorities come from ``--boot-json`` (``figures.nvic_enabled`` of ``boot.py
+   --json``: the raw 8-bit NVIC_IPR value of every IRQ enabled when the emulated boot ended). AIRCR.PRIGROUP is
+   left at 0 and the F4 implements 4 priority bits, so the preemption level = priority >> 4. A vector with a
+   handler but no priority in the JSON (an IRQ not enabled then, MemManage/BusFault/UsageFault/SVCall/
+   DebugMonitor/PendSV: ``DefaultHandler`` here) is taken at priority 0, the reset value: the highest configurable
+   level. SysTick's priority is a system handler's (SHPR3), which boot.py does not report today
+   (``figures.system_priorities``, {name or number: raw priority}, is read if present): without it SysTick is a
+   level of its own above every IRQ. A function bound to vectors of several levels counts in each. Without
+   ``--boot-json`` the priorities are not known: every handler function is a level of its own (a safe upper bound:
+   any handler may nest on any other) and the report says so. HardFault (fixed priority -1) can preempt any
+   handler: its worst path + entry, or, when it moves MSP to a stack of its own (2.), only its hardware frame
+   (entry) — kept in the MSP total although after a stack overflow the push itself may fail, which is why the
+   handler has a stack of its own. NMI (-2) preempts everything, HardFault included; it is counted whatever its
+   handler (``DefaultHandler`` too). A boot JSON whose ``run.sha256`` is of another ELF is an error.
+8. Region = ``_stack_start`` - ``_stack_end`` (flip-link puts the stack at the bottom of RAM). A separate stack
+   (2.) is checked on its own: its handler's worst path + (NMI + entry: an NMI during the HardFault handler
+   stacks on the same stack) ≤ ``--max-percent`` of its size, reported on its own line and in the JSON
+   (``total.separate_stacks``).
 
-Checks (exit 1): total > ``--max-percent`` of the region; a frame > ``--max-frame`` anywhere in the ELF; a cycle
-not allowed; an unbounded frame, or a call to an address in no function, reachable from a root.
+Checks (exit 1): total > ``--max-percent`` of the region; a separate stack's worst case > ``--max-percent`` of it;
+a frame > ``--max-frame`` anywhere in the ELF; a cycle not allowed; an unbounded frame (an ``msr msp`` that is not
+an accepted entry switch included), or a call to an address in no function, reachable from a root; a
+``--boot-json`` of another ELF.
 
 Limits: what is over-approximated, what could be missed
 -------------------------------------------------------
@@ -80,9 +106,11 @@ Limits: what is over-approximated, what could be missed
 * Could be missed: calls through an address computed at run time other than from a literal word, ``movw``/
   ``movt`` or ``adr`` (e.g. base + offset arithmetic), or to code with no function symbol (it is reported as a
   call to an address in no function); SP changes inside inline asm in forms not listed in 2.; recursion deeper
-  than one pass where allowed (and, in odd graphs, a simple path that the search order drops); nested interrupts
-  if priorities are ever made unequal (add one handler level per preemption level); code outside ``.text``
-  (RAM functions); instructions between function symbols (counted in a warning).
+  than one pass where allowed (and, in odd graphs, a simple path that the search order drops); code outside
+  ``.text`` (RAM functions); instructions between function symbols (counted in a warning); priorities changed
+  after the end of the emulated boot (the boot JSON is a snapshot at idle: an IRQ enabled later is taken at
+  priority 0, but a priority lowered later is not seen; BASEPRI is not modelled — it can only reduce nesting);
+  a PRIGROUP other than 0 (fewer preemption levels: only fewer frames nest, so the figure stays an upper bound).
 """
 
 from __future__ import annotations
@@ -100,6 +128,9 @@ from dataclasses import dataclass, field
 EXC_FRAME = 26 * 4  # R0-R3, R12, LR, PC, xPSR + S0-S15, FPSCR, reserved (FPU on, lazy stacking reserves it)
 EXC_ALIGN = 4  # STKALIGN: up to 4 B of padding to keep the frame 8-aligned
 EXC_ENTRY = EXC_FRAME + EXC_ALIGN
+# AIRCR.PRIGROUP = 0 (reset value; the firmware leaves it) and 4 implemented priority bits on the STM32F4: the
+# preemption level is the 8-bit NVIC_IPR/SHPR value >> 4 (the subpriority field, bits 3..0, is not implemented).
+PREEMPT_SHIFT = 4
 
 CONDS = {"eq", "ne", "cs", "hs", "cc", "lo", "mi", "pl", "vs", "vc", "hi", "ls", "ge", "lt", "gt", "le", "al"}
 CORE_REGS = {f"r{i}" for i in range(13)} | {"sb", "sl", "fp", "ip"}
@@ -363,6 +394,8 @@ class FuncInfo:
     sites: list[Site] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     insn_count: int = 0
+    # ``msr msp`` at entry to a constant, before any store (see ``_entry_stack_switch``): {"address", "value", "text"}
+    stack_switch: dict | None = None
 
 
 class _State:
@@ -416,11 +449,77 @@ def _dests(base: str, ops: list[str], raw_ops: str) -> set[str]:
     return d
 
 
+def _literal_word(data: dict[int, bytes], addr: int) -> int | None:
+    """The 32-bit little-endian word at ``addr`` from the literal bytes objdump printed, or None."""
+    raw = bytearray()
+    a = addr
+    while len(raw) < 4:
+        chunk = data.get(a)
+        if chunk is None:
+            # objdump may print a pool as one line spanning ``addr``: find the line that contains it.
+            start = next((b for b in data if b < a < b + len(data[b])), None) if not raw else None
+            if start is None:
+                return None
+            chunk = data[start][a - start :]
+        raw += chunk
+        a += len(chunk)
+    return int.from_bytes(raw[:4], "little")
+
+
+# Instructions allowed before the ``msr msp`` of an entry stack switch: they neither store nor move SP nor branch.
+_SWITCH_PREFIX_OK = {"mrs", "mov", "movs", "movw", "movt", "mvn", "mvns", "ldr", "cpsid", "nop", "isb", "dsb", "dmb"}
+
+
+def _entry_stack_switch(insns: list[Insn], data: dict[int, bytes]) -> dict | None:
+    """A stack switch at the function's entry: straight-line instructions from the first one that only read
+    registers, build constants (``movw``/``movt``/``mov #imm``) or load a literal (``ldr rN, [pc, #k]``), then
+    ``msr msp, rN`` with rN a known constant. No store, push, SP write, call or branch may come before it (they
+    would run on the old stack). Returns {"address", "value", "text"} or None."""
+    regs: dict[str, int] = {}
+    for ins in insns[:16]:
+        base = ins.mnem.split(".")[0]
+        ops = split_ops(ins.ops)
+        if base == "msr" and len(ops) == 2 and ops[0] == "msp":
+            v = regs.get(norm_reg(ops[1]))
+            return None if v is None else {"address": ins.addr, "value": v, "text": ins.text}
+        if base not in _SWITCH_PREFIX_OK or not ops and base not in ("nop", "isb", "dsb", "dmb", "cpsid"):
+            return None
+        if base in ("nop", "isb", "dsb", "dmb", "cpsid"):
+            continue
+        d = norm_reg(ops[0])
+        if d in ("sp", "pc", "lr") or not (d in CORE_REGS or re.fullmatch(r"r\d+", d)):
+            return None
+        val = None
+        if base in ("mov", "movs", "movw") and len(ops) == 2:
+            val = imm(ops[1])
+            if val is None:
+                val = regs.get(norm_reg(ops[1]))
+        elif base in ("mvn", "mvns") and len(ops) == 2 and imm(ops[1]) is not None:
+            val = ~imm(ops[1])
+        elif base == "movt" and len(ops) == 2 and imm(ops[1]) is not None and d in regs:
+            val = (regs[d] & 0xFFFF) | (imm(ops[1]) << 16)
+        elif base == "ldr":
+            m = re.fullmatch(r"\[pc, #(-?\d+)\]", ops[1]) if len(ops) == 2 else None
+            if m is None:
+                if len(ops) == 2 and re.fullmatch(r"\[(r\d+|sb|sl|fp|ip|sp)(, #-?\d+)?\]", ops[1]):
+                    regs.pop(d, None)  # a load: no store, no SP change; the value is unknown
+                    continue
+                return None
+            val = _literal_word(data, ((ins.addr + 4) & ~3) + int(m.group(1)))
+        if val is None:
+            regs.pop(d, None)
+        else:
+            regs[d] = val & 0xFFFFFFFF
+    return None
+
+
 def analyse_function(f: FuncInfo, insns: list[Insn], data: dict[int, bytes], is_func_start) -> None:
     """Fill ``f.frame``, ``f.sites`` and ``f.unbounded`` from the function's instructions (address order)."""
     f.insn_count = len(insns)
     if not insns:
         return
+    f.stack_switch = _entry_stack_switch(insns, data)
+    switch_addr = f.stack_switch["address"] if f.stack_switch else None
     idx = {ins.addr: k for k, ins in enumerate(insns)}
     n = len(insns)
 
@@ -551,7 +650,10 @@ def analyse_function(f: FuncInfo, insns: list[Insn], data: dict[int, bytes], is_
         elif dst0 == "sp" and base not in NO_DEST and not base.startswith(("str", "stm", "vst", "ldm", "vldm")):
             dyn("SP written by an instruction the analysis does not model")
         elif base == "msr" and ops and ops[0] in ("msp", "psp"):
-            dyn(f"stack pointer switched ({ops[0]})")
+            if ins.addr == switch_addr and not p and before == 0:
+                pass  # the entry switch: what follows runs on the new stack, its offsets counted from its top
+            else:
+                dyn(f"stack pointer switched ({ops[0]})")
 
         if sp_unknown is not None:
             unbounded.setdefault(ins.addr, f"{sp_unknown}: {ins.text}")
@@ -687,6 +789,12 @@ class Program:
     stack_end: int | None = None
     task_names: dict[int, str] = field(default_factory=dict)  # task poll start -> short task name
     warnings: list[str] = field(default_factory=list)
+    data_symbols: list[tuple[int, int, str]] = field(default_factory=list)  # (address, size, name): RAM objects
+
+    def data_symbol_below(self, top: int) -> tuple[int, int, str] | None:
+        """The data symbol whose bytes end at or contain ``top - 1`` (a stack's top is its end)."""
+        hits = [s for s in self.data_symbols if s[1] > 0 and s[0] < top <= s[0] + s[1]]
+        return min(hits, key=lambda s: s[1]) if hits else None
 
     def containing(self, addr: int) -> FuncInfo | None:
         a = addr & ~1
@@ -699,13 +807,15 @@ class Program:
 
 
 def build_program(objdump_text: str, symbols=None, extra_words=(), vector=(), stack=(None, None),
-                  dwarf_names=None) -> Program:
+                  dwarf_names=None, data_symbols=()) -> Program:
     """Build the analysed program.
 
     ``symbols``: [(address, size, raw name, is_global)] of the functions; None = take the objdump labels (for
     tests: each label starts a function running to the next label). ``extra_words``: 32-bit words of the loaded
     non-code sections (.rodata, .data, …) scanned for function addresses; the .text literal pools come from the
-    objdump text itself. ``vector``: the vector table words. ``dwarf_names``: {raw symbol: DWARF DW_AT_name}."""
+    objdump text itself. ``vector``: the vector table words. ``dwarf_names``: {raw symbol: DWARF DW_AT_name}.
+    ``data_symbols``: [(address, size, raw name)] of the sized data objects in writable memory (where a separate
+    stack can be)."""
     insns, labels, data = parse_objdump(objdump_text)
     if symbols is None:
         symbols = []
@@ -735,6 +845,8 @@ def build_program(objdump_text: str, symbols=None, extra_words=(), vector=(), st
 
     # Assign instructions to functions (by extent).
     prog = Program(funcs, set(), {}, list(vector), stack[0], stack[1])
+    dnames = demangle_all([n for _, _, n in data_symbols])
+    prog.data_symbols = [(a, sz, dnames.get(n, n)) for a, sz, n in data_symbols]
     starts_set = set(funcs)
     per: dict[int, list[Insn]] = {a: [] for a in funcs}
     order = sorted(funcs)
@@ -1073,11 +1185,15 @@ def load_elf(path: str):
         symtab = elf.get_section_by_name(".symtab")
         if not isinstance(symtab, SymbolTableSection):
             raise SystemExit("stack.py: the ELF has no symbol table (it must be built with symbols kept)")
-        funcs, syms = [], {}
+        write_idx = {i for i, s in enumerate(elf.iter_sections()) if s["sh_flags"] & 0x3 == 0x3}  # ALLOC|WRITE
+        funcs, syms, data_syms = [], {}, []
         for s in symtab.iter_symbols():
             syms.setdefault(s.name, s["st_value"])
             if s["st_info"]["type"] == "STT_FUNC" and s["st_shndx"] in exec_idx and s.name:
                 funcs.append((s["st_value"], s["st_size"], s.name, s["st_info"]["bind"] == "STB_GLOBAL"))
+            elif (s["st_info"]["type"] in ("STT_OBJECT", "STT_NOTYPE") and s["st_size"] > 0 and s.name
+                  and s["st_shndx"] in write_idx):
+                data_syms.append((s["st_value"], s["st_size"], s.name))
         words = []
         vector = []
         for s in elf.iter_sections():
@@ -1109,7 +1225,7 @@ def load_elf(path: str):
                         break
             except Exception as e:  # noqa: BLE001 — names are cosmetic; never fail the check on them
                 print(f"stack.py: warning: DWARF not readable ({e}); tasks named by hash", file=sys.stderr)
-    return funcs, words, vector, (syms.get("_stack_start"), syms.get("_stack_end")), dwarf_names
+    return funcs, words, vector, (syms.get("_stack_start"), syms.get("_stack_end")), dwarf_names, data_syms
 
 
 def run_objdump(path: str) -> str:
@@ -1127,11 +1243,49 @@ def run_objdump(path: str) -> str:
     return res.stdout
 
 
+def load_boot_priorities(path: str) -> dict:
+    """Interrupt priorities from the JSON that ``boot.py ELF --json FILE`` writes: ``figures.nvic_enabled`` =
+    [{"irq", "priority" (raw 8-bit NVIC_IPR), "handler", ...}] for every IRQ enabled when the emulated boot ended;
+    optionally ``figures.system_priorities`` = {exception name or number: raw 8-bit SHPR priority} (boot.py does
+    not write it today: SysTick is then a level of its own above every IRQ).
+
+    Returns {"source", "elf_sha256", "irq": {irq: {"priority", "handler"}}, "system": {exception number: priority}};
+    raises SystemExit on a file that is not such a JSON."""
+    try:
+        with open(path) as fh:
+            doc = json.load(fh)
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"stack.py: --boot-json {path}: {e}") from None
+    fig = doc.get("figures") if isinstance(doc, dict) else None
+    nv = fig.get("nvic_enabled") if isinstance(fig, dict) else None
+    if not isinstance(nv, list):
+        raise SystemExit(f"stack.py: --boot-json {path}: no figures.nvic_enabled (not a boot.py --json file?)")
+    irq = {}
+    for ent in nv:
+        try:
+            n, pr = int(ent["irq"]), int(ent["priority"])
+        except (KeyError, TypeError, ValueError):
+            raise SystemExit(f"stack.py: --boot-json {path}: bad nvic_enabled entry {ent!r}") from None
+        if not 0 <= pr <= 255:
+            raise SystemExit(f"stack.py: --boot-json {path}: IRQ {n} priority {pr} is not an 8-bit value")
+        irq[n] = {"priority": pr, "handler": ent.get("handler")}
+    system = {}
+    by_name = {v: k for k, v in EXC_NAMES.items()}
+    for k, v in (fig.get("system_priorities") or {}).items():
+        n = by_name.get(k) if not str(k).isdigit() else int(k)
+        if n is not None and n >= 4 and isinstance(v, int) and 0 <= v <= 255:
+            system[n] = v
+    run = doc.get("run") if isinstance(doc.get("run"), dict) else {}
+    return {"source": path, "elf_sha256": run.get("sha256"), "irq": irq, "system": system}
+
+
 # --------------------------------------------------------------------------------------------------------------------
 # Report
 
 
-def analyse(prog: Program, allow: list[str], max_percent: float, max_frame: int) -> dict:
+def analyse(prog: Program, allow: list[str], max_percent: float, max_frame: int,
+            priorities: dict | None = None) -> dict:
+    """The report. ``priorities``: from ``load_boot_priorities`` (None: not known, every handler a level)."""
     funcs = prog.funcs
     errors: list[str] = []
     region = None
@@ -1141,6 +1295,7 @@ def analyse(prog: Program, allow: list[str], max_percent: float, max_frame: int)
     # Roots.
     vec = prog.vector
     handlers: dict[int, list[str]] = {}  # handler start -> vector names
+    handler_vecs: dict[int, list[int]] = {}  # handler start -> vector indices
     for i, w in enumerate(vec[1:], start=1):
         if w == 0 or i == 1:
             continue
@@ -1150,6 +1305,7 @@ def analyse(prog: Program, allow: list[str], max_percent: float, max_frame: int)
             continue
         label = EXC_NAMES.get(i, f"IRQ {i - 16}" if i >= 16 else f"exception {i}")
         handlers.setdefault(f.start, []).append(label)
+        handler_vecs.setdefault(f.start, []).append(i)
     reset = prog.containing(vec[1]) if len(vec) > 1 else None
     if reset is None:
         reset = next((f for f in funcs.values() if f.name == "Reset"), None)
@@ -1199,37 +1355,151 @@ def analyse(prog: Program, allow: list[str], max_percent: float, max_frame: int)
         r["path"] = path_json(r["func"])
         del r["func"]
 
-    # Total for the MSP.
+    # Separate stacks: a HardFault or NMI handler that moves MSP at its entry (``_entry_stack_switch``).
+    reached = {v for v in res.worst if v >= 0}
+    callees = {e.to for v in reached for e in res.edges.get(v, [])}
+    separate: dict[int, dict] = {}  # root start -> the stack it runs on
+    for a in sorted(reached):
+        f = funcs[a]
+        if not f.stack_switch:
+            continue
+        sw = f.stack_switch
+        is_root = (hardfault and a == hardfault.start) or (nmi and a == nmi.start)
+        why = None
+        sym = prog.data_symbol_below(sw["value"])
+        if not is_root or (hardfault and nmi and hardfault.start == nmi.start):
+            why = "only the HardFault or NMI handler may move MSP to a stack of its own"
+        elif a in callees:
+            why = "the function that moves MSP is also called (not only entered as an exception)"
+        elif any(a in handler_vecs and v not in (2, 3) for v in handler_vecs.get(a, [])):
+            why = "the handler that moves MSP is also the handler of a configurable-priority vector"
+        elif sym is None:
+            why = f"the new SP {sw['value']:#010x} is not the top of (or inside) any data symbol"
+        elif (prog.stack_end is not None and prog.stack_start is not None
+              and sym[0] < prog.stack_start and prog.stack_end < sym[0] + sym[1]):
+            why = f"the new stack {sym[2]} overlaps the main stack region"
+        if why:
+            res.unbounded_reached.setdefault(a, []).insert(0, f"stack pointer switched (msp): {why}: {sw['text']}")
+            continue
+        usable = sw["value"] - sym[0]
+        separate[a] = {"root": "HardFault" if hardfault and a == hardfault.start else "NMI", "function": f.name,
+                       "symbol": sym[2], "address": f"{sym[0]:#010x}", "symbol_bytes": sym[1],
+                       "top": f"{sw['value']:#010x}", "bytes": usable, "handler_bytes": res.worst[a]}
+        if sw["value"] % 8:
+            prog.warnings.append(f"{f.name} moves MSP to {sw['value']:#010x}, not 8-byte aligned (AAPCS)")
+    # What preempts a handler on a stack of its own runs on that stack: NMI preempts HardFault.
+    for a, st in separate.items():
+        st["nmi_bytes"] = 0
+        if st["root"] == "HardFault" and nmi and nmi.start != a:
+            if nmi.start in separate:
+                st["nmi_bytes"] = EXC_ENTRY  # only the NMI's hardware frame; its handler moves to its own stack
+                if separate[nmi.start]["symbol"] == st["symbol"]:
+                    errors.append(f"HardFault and NMI both move MSP to {st['symbol']}: an NMI during the "
+                                  "HardFault handler would overwrite its stack")
+            else:
+                st["nmi_bytes"] = res.worst[nmi.start] + EXC_ENTRY
+        st["worst_bytes"] = st["handler_bytes"] + st["nmi_bytes"]
+        st["percent"] = round(100.0 * st["worst_bytes"] / st["bytes"], 1) if st["bytes"] else None
+        st["limit_percent"] = max_percent
+        if st["percent"] is None or st["percent"] > max_percent:
+            errors.append(f"{st['root']} stack {st['symbol']}: worst case {st['worst_bytes']} B is "
+                          f"{st['percent']}% of its {st['bytes']} B (limit {max_percent}%)")
+
+    # Total for the MSP: thread + one handler per preemption level (+ entry) + HardFault + NMI.
     levels = []
     if reset:
         levels.append({"level": "thread mode (Reset)", "short": "thread", "bytes": res.worst[reset.start],
                        "function": reset.name})
-    isr = [(res.worst[a], a) for a in handlers if (not hardfault or a != hardfault.start)
-           and not (nmi and a == nmi.start and a not in default_like)]
-    if isr:
-        b, a = max(isr)
-        levels.append({"level": "deepest interrupt/exception handler + exception entry", "short": "handler",
-                       "bytes": b + EXC_ENTRY,
-                       "function": funcs[a].name, "handler_bytes": b, "entry_bytes": EXC_ENTRY})
+    prio_notes: list[str] = []
+    groups: dict[tuple, list[tuple[int, int, int | None]]] = {}  # level key -> [(handler, vector, raw priority)]
+    sys_prio = (priorities or {}).get("system", {})
+    irq_prio = (priorities or {}).get("irq", {})
+    unknown_vecs = []
+    for n, ent in sorted(irq_prio.items()):  # the boot JSON must describe this ELF's vector table
+        w = vec[16 + n] if 16 + n < len(vec) else 0
+        f = prog.containing(w) if w else None
+        if f is None:
+            prog.warnings.append(f"boot JSON: IRQ {n} is enabled but has no handler in this ELF's vector table")
+        elif ent.get("handler") and ent["handler"] not in {f.name, f.raw, *f.aliases}:
+            prog.warnings.append(f"boot JSON: IRQ {n}'s handler is {ent['handler']}, this ELF's vector points to "
+                                 f"{f.name} (JSON of another build?)")
+    for a in sorted(handler_vecs):
+        for v in handler_vecs[a]:
+            if v in (2, 3):
+                continue  # NMI, HardFault: fixed priorities above every configurable level
+            if priorities is None:
+                key = (1, 0, a)  # not known: every handler a level of its own
+                raw = None
+            elif v >= 16 and (v - 16) in irq_prio:
+                raw = irq_prio[v - 16]["priority"]
+                key = (0, raw >> PREEMPT_SHIFT, 0)
+            elif v < 16 and v in sys_prio:
+                raw = sys_prio[v]
+                key = (0, raw >> PREEMPT_SHIFT, 0)
+            elif v == 15:
+                key, raw = (-1, 0, 0), None  # SysTick not known: a level of its own above every IRQ
+            else:
+                key, raw = (0, 0, 0), 0  # not enabled at the boot's end / not known: the reset value, 0
+                unknown_vecs.append(v)
+            groups.setdefault(key, []).append((a, v, raw))
+    if priorities is not None and unknown_vecs:
+        prio_notes.append(f"{len(unknown_vecs)} vectors with a handler but no priority in the boot JSON (not "
+                          "enabled when the boot ended, or system exceptions) are taken at priority 0, the reset "
+                          "value, the highest configurable level")
+    for key in sorted(groups):
+        members = groups[key]
+        b, a = max((res.worst[a], a) for a, _, _ in members)
+        names = sorted({funcs[x].name for x, _, _ in members})
+        vecs = sorted({v for _, v, _ in members})
+        if key[0] == 1:
+            label, short = f"handler {short_name(funcs[a].name, 24)} (priority unknown) + entry", "handler"
+            pre = raw = None
+        elif key[0] == -1:
+            label, short = "SysTick (priority unknown: above every IRQ) + entry", "SysTick"
+            pre = raw = None
+        else:
+            pre = key[1]
+            raws = sorted({r for _, _, r in members if r is not None})
+            raw = raws[0] if len(raws) == 1 else raws
+            pr = ", ".join(f"{r:#04x}" for r in raws)
+            unset = any(v in unknown_vecs for _, v, _ in members)
+            label = (f"level {pre} ({pr}{', unset = reset value' if unset else ''}): "
+                     f"{len(names)} handler{'s' if len(names) > 1 else ''} + entry")
+            short = f"level {pre}"
+        levels.append({"level": label, "short": short, "bytes": b + EXC_ENTRY, "function": funcs[a].name,
+                       "handler_bytes": b, "entry_bytes": EXC_ENTRY, "preemption_level": pre, "priority": raw,
+                       "handlers": names,
+                       "vectors": [EXC_NAMES.get(v, f"IRQ {v - 16}" if v >= 16 else f"exception {v}") for v in vecs]})
     if hardfault:
-        b = res.worst[hardfault.start]
-        levels.append({"level": "HardFault (may preempt a handler) + exception entry", "short": "HardFault",
-                       "bytes": b + EXC_ENTRY,
-                       "function": hardfault.name, "handler_bytes": b, "entry_bytes": EXC_ENTRY})
-    if nmi and nmi.start not in default_like and (not hardfault or nmi.start != hardfault.start):
-        b = res.worst[nmi.start]
-        levels.append({"level": "NMI (preempts everything) + exception entry", "short": "NMI",
-                       "bytes": b + EXC_ENTRY,
+        if hardfault.start in separate:
+            st = separate[hardfault.start]
+            levels.append({"level": f"HardFault exception entry (handler on {short_name(st['symbol'], 20)})",
+                           "short": "HardFault entry", "bytes": EXC_ENTRY, "function": hardfault.name,
+                           "handler_bytes": 0, "entry_bytes": EXC_ENTRY, "stack": st["symbol"]})
+        else:
+            b = res.worst[hardfault.start]
+            levels.append({"level": "HardFault (may preempt a handler) + exception entry", "short": "HardFault",
+                           "bytes": b + EXC_ENTRY,
+                           "function": hardfault.name, "handler_bytes": b, "entry_bytes": EXC_ENTRY})
+    if nmi and (not hardfault or nmi.start != hardfault.start):
+        b = 0 if nmi.start in separate else res.worst[nmi.start]
+        levels.append({"level": "NMI (preempts everything) + exception entry"
+                       + (f" (handler on {separate[nmi.start]['symbol']})" if nmi.start in separate else ""),
+                       "short": "NMI", "bytes": b + EXC_ENTRY,
                        "function": nmi.name, "handler_bytes": b, "entry_bytes": EXC_ENTRY})
     total = sum(lv["bytes"] for lv in levels)
     pct = round(100.0 * total / region, 1) if region else None
+    priority_info = {"known": priorities is not None,
+                     "source": (priorities or {}).get("source"),
+                     "preemption_shift": PREEMPT_SHIFT,
+                     "irq": {str(n): v for n, v in sorted(irq_prio.items())},
+                     "system": {EXC_NAMES.get(n, str(n)): v for n, v in sorted(sys_prio.items())}}
 
     # Frames.
     def shown(f: FuncInfo) -> str:
         return f"{f.name} [task {prog.task_names[f.start]}]" if f.start in prog.task_names else f.name
 
     largest = max(funcs.values(), key=lambda f: f.frame) if funcs else None
-    reached = {v for v in res.worst if v >= 0}
     over = sorted((f for f in funcs.values() if f.frame > max_frame), key=lambda f: -f.frame)
 
     # Indirect call accounting.
@@ -1293,13 +1563,18 @@ def analyse(prog: Program, allow: list[str], max_percent: float, max_frame: int)
         "total": {
             "bytes": total, "percent_of_region": pct, "levels": levels,
             "assumptions": [
-                "one stack (MSP) for thread mode and every exception",
+                "one stack (MSP) for thread mode and every exception, except a HardFault/NMI handler that moves MSP "
+                "to a stack of its own at its entry (its hardware frame still lands on the MSP)",
                 f"exception entry {EXC_ENTRY} B: 26-word frame with the FPU on (lazy stacking reserves S0-S15, FPSCR)"
                 " + 4 B alignment pad",
-                "all Embassy interrupts share one priority: handlers do not nest among themselves",
-                "a HardFault can preempt a handler (a fault inside an ISR)",
-                "an NMI that is DefaultHandler (spins forever) is counted among the handlers",
-            ],
+                ("handlers nest once per distinct preemption level (priority >> 4: AIRCR.PRIGROUP 0, 4 priority "
+                 "bits); handlers of one level do not nest among themselves" if priorities is not None else
+                 "interrupt priorities not known (no --boot-json): every handler counted as a level of its own"),
+                "a HardFault can preempt any handler (a fault inside an ISR); an NMI preempts everything, "
+                "the HardFault handler included",
+            ] + prio_notes,
+            "priorities": priority_info,
+            "separate_stacks": list(separate.values()),
         },
         "largest_frame": {"function": shown(largest), "bytes": largest.frame} if largest else None,
         "frames_over_limit": [{"function": shown(f), "bytes": f.frame, "reached": f.start in reached} for f in over],
@@ -1349,11 +1624,23 @@ def text_report(rep: dict, elf: str) -> str:
         out.append(f"{short_name(r['name'], w):<{w}} {r['worst_bytes']:>9} {pct:>9}  {_abbrev_path(r['path'])}")
     out.append("-" * 120)
     t = rep["total"]
+    pi = t.get("priorities") or {}
+    if pi.get("known"):
+        out.append(f"interrupt priorities from {pi.get('source')}: one handler frame per preemption level "
+                   f"(priority >> {pi.get('preemption_shift')}), highest first")
+    else:
+        out.append("interrupt priorities NOT KNOWN (no --boot-json): every handler counted as a level of its own")
     for lv in t["levels"]:
         out.append(f"  + {lv['level']:<56} {lv['bytes']:>9}  ({short_name(lv['function'], 50)})")
     pct = f"{t['percent_of_region']:.1f}" if t["percent_of_region"] is not None else "-"
     out.append(f"{'TOTAL (MSP)':<{w}} {t['bytes']:>9} {pct:>9}  limit {rep['limits']['max_percent']}% = "
                + (f"{int(region * rep['limits']['max_percent'] / 100)} B" if region else "?"))
+    for st in t.get("separate_stacks", []):
+        nm = f" + NMI {st['nmi_bytes']}" if st["nmi_bytes"] else ""
+        spct = f"{st['percent']:.1f}" if st["percent"] is not None else "-"
+        out.append(f"{(st['root'] + ' stack (' + short_name(st['symbol'], 24) + ')'):<{w}} {st['worst_bytes']:>9} "
+                   f"{spct:>9}  of its {st['bytes']} B at {st['address']} (handler {st['handler_bytes']}{nm}); "
+                   f"limit {st['limit_percent']}% = {int(st['bytes'] * st['limit_percent'] / 100)} B")
     lf = rep["largest_frame"]
     if lf:
         out.append(f"largest single frame: {lf['bytes']} B in {lf['function']} (limit {rep['limits']['max_frame']} B)")
@@ -1417,6 +1704,11 @@ def markdown_report(rep: dict) -> str:
     parts = " + ".join(f"{lv['bytes']} {lv['short']}" for lv in t["levels"])
     out.append(f"| **Total (MSP)** | **{t['bytes']}** | **{pct}** | {parts} "
                f"(exception levels include {EXC_ENTRY} B entry) |")
+    for st in t.get("separate_stacks", []):
+        spct = f"{st['percent']:.1f}" if st["percent"] is not None else "–"
+        out.append(f"| {st['root']} stack (`{st['symbol']}`, {st['bytes']} B) | {st['worst_bytes']} | {spct} "
+                   f"(of its own stack) | handler {st['handler_bytes']}"
+                   + (f" + NMI {st['nmi_bytes']}" if st["nmi_bytes"] else "") + " |")
     lf = rep["largest_frame"]
     if lf:
         out += ["", f"Largest single frame: {lf['bytes']} B (`{short_name(lf['function'], 80)}`)."]
@@ -1433,6 +1725,9 @@ def main(argv=None) -> int:
     ap.add_argument("--min-region", type=int, default=0, metavar="BYTES",
                     help="fail if the stack region is smaller (the firmware's layout::MCU_STACK_LEN, which the host "
                          "tests run their tasks on)")
+    ap.add_argument("--boot-json", metavar="FILE",
+                    help="interrupt priorities from `boot.py ELF --json FILE` (figures.nvic_enabled): one handler "
+                         "frame per preemption level; without it every handler counts as a level of its own")
     ap.add_argument("--allow-recursion", action="append", default=[], metavar="SUBSTRING",
                     help="accept recursion whose every cycle passes through a function whose name contains "
                          "SUBSTRING (repeatable); its bound is then one pass through the cycles")
@@ -1441,18 +1736,24 @@ def main(argv=None) -> int:
         print(f"stack.py: no such ELF: {args.elf}", file=sys.stderr)
         return 2
     try:
-        funcs, words, vector, stack, dwarf_names = load_elf(args.elf)
-        prog = build_program(run_objdump(args.elf), funcs, words, vector, stack, dwarf_names)
+        priorities = load_boot_priorities(args.boot_json) if args.boot_json else None
+        funcs, words, vector, stack, dwarf_names, data_syms = load_elf(args.elf)
+        prog = build_program(run_objdump(args.elf), funcs, words, vector, stack, dwarf_names, data_syms)
     except SystemExit as e:
         print(e, file=sys.stderr)
         return 2
-    rep = analyse(prog, args.allow_recursion, args.max_percent, args.max_frame)
+    with open(args.elf, "rb") as fh:
+        sha = hashlib.sha256(fh.read()).hexdigest()
+    rep = analyse(prog, args.allow_recursion, args.max_percent, args.max_frame, priorities)
+    if priorities is not None and priorities.get("elf_sha256") and priorities["elf_sha256"] != sha:
+        rep["ok"] = False
+        rep["errors"].append(f"--boot-json {args.boot_json} is of another ELF (sha256 "
+                             f"{priorities['elf_sha256'][:12]}…, this one {sha[:12]}…): its priorities do not apply")
     if rep["region"]["bytes"] is not None and rep["region"]["bytes"] < args.min_region:
         rep["ok"] = False
         rep.setdefault("errors", []).append(
             f"stack region {rep['region']['bytes']} B is smaller than --min-region {args.min_region} B")
-    with open(args.elf, "rb") as fh:
-        rep = {"elf": args.elf, "sha256": hashlib.sha256(fh.read()).hexdigest(), **rep}
+    rep = {"elf": args.elf, "sha256": sha, **rep}
     print(text_report(rep, args.elf))
     if args.markdown:
         print()

@@ -438,8 +438,10 @@ def test_jump_table_targets_followed():
 
 
 def test_total_and_thresholds():
-    # Thread 40 + handler (24 + 108) + HardFault (8 + 108) = 288 B of a 360 B region = 80% > 75%: fails;
-    # with --max-percent 85 passes. A frame above --max-frame fails on its own.
+    # Priorities not known (no --boot-json): every handler is a level of its own. Thread 40 + TIM2 (24 + 108) +
+    # DefaultHandler as IRQ 1 (0 + 108) + HardFault (8 + 108) + NMI, which is DefaultHandler (0 + 108) = 504 B of a
+    # 630 B region = 80% > 75%: fails; with --max-percent 85 passes. A frame above --max-frame fails on its own.
+    # (Before priorities were modelled: one shared handler level, 40 + 132 + 116 = 288 B of 360 B.)
     src = """
         08000000 <Reset>:
          8000000: push {r7, lr}
@@ -454,16 +456,18 @@ def test_total_and_thresholds():
         08000030 <DefaultHandler>:
          8000030: b 0x8000030 <DefaultHandler>
     """
-    vec = [0x20000168, 0x8000001, 0x8000031, 0x8000021] + [0] * 12 + [0x8000011, 0x8000031]
+    vec = [0x20000276, 0x8000001, 0x8000031, 0x8000021] + [0] * 12 + [0x8000011, 0x8000031]
 
     def rep(**kw):
-        prog = program(src, vector=vec, stack=(0x20000168, 0x20000000))
+        prog = program(src, vector=vec, stack=(0x20000276, 0x20000000))
         return stack.analyse(prog, [], kw.get("pct", 75), kw.get("frame", 8192))
 
     r = rep()
-    assert r["region"]["bytes"] == 360
-    assert [lv["bytes"] for lv in r["total"]["levels"]] == [40, 24 + 108, 8 + 108]
-    assert r["total"]["bytes"] == 288 and r["total"]["percent_of_region"] == 80.0
+    assert r["region"]["bytes"] == 630
+    assert [lv["bytes"] for lv in r["total"]["levels"]] == [40, 24 + 108, 0 + 108, 8 + 108, 0 + 108]
+    assert [lv["short"] for lv in r["total"]["levels"]] == ["thread", "handler", "handler", "HardFault", "NMI"]
+    assert not r["total"]["priorities"]["known"]
+    assert r["total"]["bytes"] == 504 and r["total"]["percent_of_region"] == 80.0
     assert not r["ok"] and any("80.0%" in e for e in r["errors"])
     assert rep(pct=85)["ok"]
     r = rep(pct=85, frame=32)
@@ -471,6 +475,171 @@ def test_total_and_thresholds():
     names = [x["name"] for x in r["roots"]]
     assert names[0].startswith("Reset") and "HardFault" in names and "TIM2 (IRQ 0)" in names
     assert any(n.startswith("DefaultHandler (2 vectors)") for n in names)
+
+
+# Priority levels and the HardFault stack switch. Vector table: NMI (frame 24), HardFault (moves MSP to the top of
+# FAULT_STACK, 0x20000c00, then tail-calls fdir_hard_fault, frame 104), SysTick (8), IRQ 0 TIM2 (24), IRQ 1 USART1
+# (16), IRQ 2 USART2 (40), IRQ 3 DefaultHandler (0). Main stack region 0x20000000..0x20000800 (2048 B).
+LEVELS_SRC = """
+    08000000 <Reset>:
+     8000000: push {r7, lr}
+     8000002: sub sp, #32
+     8000004: b 0x8000004 <Reset+0x4>
+    08000010 <SysTick>:
+     8000010: push {r7, lr}
+     8000012: pop {r7, pc}
+    08000020 <TIM2>:
+     8000020: push {r4, r5, r6, r7, r8, lr}
+     8000024: pop {r4, r5, r6, r7, r8, pc}
+    08000030 <USART1>:
+     8000030: push {r4, r5, r6, lr}
+     8000032: pop {r4, r5, r6, pc}
+    08000040 <USART2>:
+     8000040: push {r7, lr}
+     8000042: sub sp, #32
+     8000044: add sp, #32
+     8000046: pop {r7, pc}
+    08000050 <HardFault>:
+     8000050: mrs r0, msp
+     8000054: mrs r1, psp
+     8000058: mov r2, lr
+     800005a: ldr r3, [pc, #8]
+     800005c: msr msp, r3
+     8000060: b.w 0x8000070 <fdir_hard_fault>
+    08000064 <$d>:
+     8000064: .word 0x20000c00
+    08000070 <fdir_hard_fault>:
+     8000070: push {r7, lr}
+     8000072: sub sp, #96
+     8000074: b 0x8000074 <fdir_hard_fault+0x4>
+    08000080 <NMI>:
+     8000080: push {r4, r5, r6, r7, r8, lr}
+     8000084: b 0x8000084 <NMI+0x4>
+    08000090 <DefaultHandler>:
+     8000090: b 0x8000090 <DefaultHandler>
+"""
+LEVELS_VEC = ([0x20000800, 0x8000001, 0x8000081, 0x8000051] + [0] * 11
+              + [0x8000011, 0x8000021, 0x8000031, 0x8000041, 0x8000091])
+FAULT_STACK = [(0x20000800, 0x400, "FAULT_STACK"), (0x20000C00, 0x10, "OTHER")]
+
+
+def _levels_rep(src=LEVELS_SRC, data_symbols=FAULT_STACK, priorities=None, pct=75):
+    prog = program(src, vector=LEVELS_VEC, stack=(0x20000800, 0x20000000), data_symbols=data_symbols)
+    return stack.analyse(prog, [], pct, 8192, priorities)
+
+
+def test_hardfault_stack_switch():
+    prog = program(LEVELS_SRC, vector=LEVELS_VEC, stack=(0x20000800, 0x20000000), data_symbols=FAULT_STACK)
+    hf = by_name(prog, "HardFault")
+    assert hf.stack_switch["address"] == 0x800005C and hf.stack_switch["value"] == 0x20000C00
+    assert not hf.unbounded and hf.frame == 0
+    r = _levels_rep()
+    assert r["ok"], r["errors"]
+    # The handler runs on FAULT_STACK (1024 B at 0x20000800, top 0x20000c00 = the literal): HardFault's path is
+    # the tail call to fdir_hard_fault, 104 B; an NMI preempts it there: 24 + 108. 236 B = 23.0% of 1024 B.
+    (st,) = r["total"]["separate_stacks"]
+    assert (st["root"], st["symbol"], st["bytes"], st["top"]) == ("HardFault", "FAULT_STACK", 1024, "0x20000c00")
+    assert (st["handler_bytes"], st["nmi_bytes"], st["worst_bytes"], st["percent"]) == (104, 132, 236, 23.0)
+    # On the MSP only the HardFault's hardware frame remains.
+    hfl = [lv for lv in r["total"]["levels"] if lv["function"] == "HardFault"]
+    assert [(lv["bytes"], lv["handler_bytes"], lv["stack"]) for lv in hfl] == [(108, 0, "FAULT_STACK")]
+    text = stack.text_report({"elf": "x", "sha256": "", **r}, "x")
+    assert "HardFault stack (FAULT_STACK)" in text and "236" in text and "limit 75% = 768 B" in text
+
+    # The same handler on a 256 B stack (same top): 236 B = 92.2% > 75%: fails, on its own line.
+    r = _levels_rep(data_symbols=[(0x20000B00, 0x100, "FAULT_STACK")])
+    assert not r["ok"]
+    assert any("HardFault stack FAULT_STACK: worst case 236 B is 92.2% of its 256 B" in e for e in r["errors"])
+
+    def fails(src=LEVELS_SRC, data_symbols=FAULT_STACK, why="stack pointer switched (msp)"):
+        r = _levels_rep(src, data_symbols)
+        assert not r["ok"] and not r["total"]["separate_stacks"]
+        assert any(e.startswith("unbounded frame in HardFault") and why in e for e in r["errors"]), r["errors"]
+
+    # A store before the switch would run on the old (maybe overflowed) stack: not a switch, unbounded.
+    fails(LEVELS_SRC.replace("mov r2, lr", "str r2, [r1]"))
+    # A switch to an address that is no data symbol's top, or to a stack inside the main region.
+    fails(LEVELS_SRC.replace(".word 0x20000c00", ".word 0x30000000"), why="not the top of")
+    fails(data_symbols=[(0x20000400, 0x800, "X")], why="overlaps the main stack region")
+    # The switching function also called from thread code.
+    fails(LEVELS_SRC.replace("8000004: b 0x8000004 <Reset+0x4>",
+                             "8000004: bl 0x8000050 <HardFault>\n 8000008: b 0x8000008 <Reset+0x8>"),
+          why="also called")
+    # msr psp, or msr msp anywhere else, stays unbounded.
+    prog = program("""
+        08000000 <f>:
+         8000000: movw r0, #0
+         8000004: movt r0, #8192
+         8000008: msr psp, r0
+         800000c: bx lr
+        08000010 <g>:
+         8000010: push {r7, lr}
+         8000012: movw r0, #0
+         8000016: msr msp, r0
+         800001a: pop {r7, pc}
+    """)
+    assert by_name(prog, "f").unbounded and by_name(prog, "g").unbounded
+    assert by_name(prog, "f").stack_switch is None and by_name(prog, "g").stack_switch is None
+
+
+def test_priority_levels():
+    # Priorities as boot.py leaves them: TIM2 0x40, USART1 0x20, USART2 0x45 (preemption level 4, with TIM2); IRQ 3
+    # (DefaultHandler) not enabled: priority 0, the reset value; SysTick not in the JSON: a level of its own.
+    # Thread 40 + SysTick (8 + 108) + level 0 (DefaultHandler 0 + 108) + level 2 (USART1 16 + 108) + level 4
+    # (max(TIM2 24, USART2 40) + 108) + HardFault entry 108 + NMI (24 + 108) = 776 B of 2048 B = 37.9%.
+    pri = {"source": "boot.json", "irq": {0: {"priority": 0x40, "handler": "TIM2"},
+                                          1: {"priority": 0x20, "handler": "USART1"},
+                                          2: {"priority": 0x45, "handler": "USART2"}}, "system": {}}
+    r = _levels_rep(priorities=pri)
+    assert r["ok"], r["errors"]
+    lv = r["total"]["levels"]
+    assert [x["short"] for x in lv] == ["thread", "SysTick", "level 0", "level 2", "level 4", "HardFault entry", "NMI"]
+    assert [x["bytes"] for x in lv] == [40, 116, 108, 124, 148, 108, 132]
+    assert [x.get("function") for x in lv][2:5] == ["DefaultHandler", "USART1", "USART2"]
+    assert lv[4]["handlers"] == ["TIM2", "USART2"] and lv[4]["priority"] == [0x40, 0x45]
+    assert r["total"]["bytes"] == 776 and r["total"]["percent_of_region"] == 37.9
+    assert r["total"]["priorities"]["known"]
+
+    # SysTick's priority known (0x20): it shares level 2 with USART1 (max(8, 16) = 16): 776 - 116 = 660.
+    r = _levels_rep(priorities={**pri, "system": {15: 0x20}})
+    assert [x["bytes"] for x in r["total"]["levels"]] == [40, 108, 124, 148, 108, 132]
+    assert r["total"]["bytes"] == 660
+
+    # Priorities not known: every handler a level: 40 + SysTick 116 + TIM2 132 + USART1 124 + USART2 148
+    # + DefaultHandler 108 + HardFault entry 108 + NMI 132 = 908.
+    r = _levels_rep()
+    assert [x["bytes"] for x in r["total"]["levels"]] == [40, 116, 132, 124, 148, 108, 108, 132]
+    assert r["total"]["bytes"] == 908
+    text = stack.text_report({"elf": "x", "sha256": "", **r}, "x")
+    assert "priorities NOT KNOWN" in text
+
+
+def test_load_boot_priorities():
+    import json
+    import tempfile
+
+    doc = {"run": {"sha256": "ab" * 32},
+           "figures": {"nvic_enabled": [
+               {"irq": 37, "name": "USART1", "priority": 32, "handler": "USART1", "default_handler": False},
+               {"irq": 50, "name": "TIM5", "priority": 48, "handler": "TIM5", "default_handler": False}]}}
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "boot.json")
+        with open(path, "w") as fh:
+            json.dump(doc, fh)
+        p = stack.load_boot_priorities(path)
+        assert p["irq"] == {37: {"priority": 32, "handler": "USART1"}, 50: {"priority": 48, "handler": "TIM5"}}
+        assert p["system"] == {} and p["elf_sha256"] == "ab" * 32
+        doc["figures"]["system_priorities"] = {"SysTick": 16}
+        with open(path, "w") as fh:
+            json.dump(doc, fh)
+        assert stack.load_boot_priorities(path)["system"] == {15: 16}
+        with open(path, "w") as fh:
+            json.dump({"figures": {}}, fh)
+        try:
+            stack.load_boot_priorities(path)
+            raise AssertionError("a JSON without nvic_enabled was accepted")
+        except SystemExit as e:
+            assert "nvic_enabled" in str(e)
 
 
 def test_demangle_and_task_label():

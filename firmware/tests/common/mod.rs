@@ -65,7 +65,15 @@ impl Sat {
             platform,
         );
         let mut store = CalStore::new(Stalling(flash)).expect("flash geometry");
-        app::load_calibration(&mut store, app.pipeline.get_mut());
+        // As `main.rs`: the boot counter for `ClearResets`, the calibration unless in safe mode.
+        if platform.resets.is_some() {
+            app.pipeline
+                .get_mut()
+                .set_boot_count(platform.boot.boot_count);
+        }
+        if !platform.boot.safe_mode {
+            app::load_calibration(&mut store, app.pipeline.get_mut());
+        }
         Self {
             app,
             board: Board::with_bus_baud(bus_baud),
@@ -286,6 +294,16 @@ pub fn healths(t: &[Telemetry]) -> Vec<shared::telemetry::HealthReport> {
     t.iter()
         .filter_map(|t| match t {
             Telemetry::Health(h) => Some(*h),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The reset histories among `t`, in order.
+pub fn reset_histories(t: &[Telemetry]) -> Vec<shared::telemetry::ResetHistory> {
+    t.iter()
+        .filter_map(|t| match t {
+            Telemetry::Resets(h) => Some(*h),
             _ => None,
         })
         .collect()

@@ -132,6 +132,12 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
             }
             Command::AllanRequest { first, count } => self.cursor.start_allan(first, count)?,
             Command::AllanReset => self.memory.borrow_mut().allan.reset(),
+            Command::ClearResets { boot_count } => {
+                if self.boot_count != Some(boot_count) {
+                    return Err(Reject::BadArgument);
+                }
+                let _ = out.push(Output::ClearResets);
+            }
             Command::HealthRequest { detail } => {
                 let _ = out.push(Output::Telemetry(Telemetry::Health(self.health())));
                 if detail {

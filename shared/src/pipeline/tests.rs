@@ -655,6 +655,23 @@ fn link_discarded_forgets_the_partial_frame_and_counts_the_gap() {
     assert_eq!(c.frames_dropped, 4, "frames 3-6");
 }
 
+/// `ClearResets` is accepted only when it names the platform's boot counter (records from a boot the ground has
+/// not seen are never cleared), and then asks the platform to clear; without a boot counter it is always refused.
+#[test]
+fn clear_resets_names_the_boot() {
+    let mut p = Pipeline::new_boxed(PipelineConfig::DEFAULT);
+    let out = command(&mut p, 1, Command::ClearResets { boot_count: 0 });
+    assert_eq!(ack(&out).result, Err(Reject::BadArgument));
+    assert_eq!(out.len(), 1);
+    p.set_boot_count(7);
+    let out = command(&mut p, 2, Command::ClearResets { boot_count: 6 });
+    assert_eq!(ack(&out).result, Err(Reject::BadArgument));
+    assert_eq!(out.len(), 1);
+    let out = command(&mut p, 3, Command::ClearResets { boot_count: 7 });
+    assert_eq!(ack(&out).result, Ok(()));
+    assert_eq!(out[1], Output::ClearResets);
+}
+
 /// `SetMode` tells the FPGA to stop or start its stream; `ExcludeGroups` leaves groups out of the fusion by hand
 /// (whether or not fault exclusion is on), keeps them out across a new calibration, and refuses groups the board
 /// does not have.

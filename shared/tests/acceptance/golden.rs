@@ -65,6 +65,7 @@ impl Fnv {
                 self.bytes(&[2]);
                 self.bytes(&tag.to_le_bytes());
             }
+            Output::ClearResets => self.bytes(&[3]),
         }
     }
 
@@ -261,6 +262,7 @@ impl Run {
             Output::PersistCalibration { tag } => {
                 self.line("persist", &format!("{{\"tag\":{tag}}}"));
             }
+            Output::ClearResets => self.line("clear_resets", "{}"),
         }
     }
 
