@@ -17,9 +17,21 @@ import unittest
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import boot  # noqa: E402
 import emu  # noqa: E402
+import test_boot  # noqa: E402
 from test_boot import FakeMachine, args, find_lld  # noqa: E402
 
 RES = 0x2000_4000  # where the test firmwares write their results (SRAM, kept across resets)
+
+
+class FakeMem:
+    """The unicorn engine as the DMA model writes to it: a byte map."""
+
+    def __init__(self):
+        self.mem = {}
+
+    def mem_write(self, a, d):
+        for i, b in enumerate(d):
+            self.mem[a + i] = b
 
 
 class FakeSim(FakeMachine):
@@ -141,15 +153,8 @@ class ModelTests(unittest.TestCase):
         self.assertFalse(u.irq_pending())  # without EIE no interrupt
 
     def test_usart_error_bytes_still_go_to_the_dma_ring(self):
-        class Uc:
-            def __init__(self):
-                self.mem = {}
-
-            def mem_write(self, a, d):
-                for i, b in enumerate(d):
-                    self.mem[a + i] = b
         m = FakeSim()
-        m.uc = Uc()
+        m.uc = FakeMem()
         d = emu.Dma(m, "DMA2", 0x4002_6400)
         b = 0x10 + 0x18 * 2
         d.regs.update({b + 4: 8, b + 0xC: 0x2000_0000, b: 1 | (1 << 8)})
@@ -166,15 +171,8 @@ class ModelTests(unittest.TestCase):
     def test_dma_stream_restart_as_the_f4(self):
         # AN4031: a stream disabled mid-transfer sets TCIF and keeps NDTR; enabled again it restarts at M0AR with
         # that NDTR; the circular reload brings back the programmed length
-        class Uc:
-            def __init__(self):
-                self.mem = {}
-
-            def mem_write(self, a, d):
-                for i, b in enumerate(d):
-                    self.mem[a + i] = b
         m = FakeSim()
-        m.uc = Uc()
+        m.uc = FakeMem()
         d = emu.Dma(m, "DMA2", 0x4002_6400)
         b = 0x10 + 0x18 * 2
         d.write(b + 4, 4, 8)  # NDTR programmed while disabled
@@ -202,6 +200,15 @@ class ModelTests(unittest.TestCase):
         self.assertEqual(scenarios.kiss(b"\xc0\xdb"), b"\xc0\x00\xdb\xdc\xdb\xdd\xc0")
 
 
+# A HardFault handler's start: CFSR and HFSR to RES[0] and RES[1] (r0 keeps RES).
+HARDFAULT_SAVES_CFSR_HFSR = f"""  ldr r0, ={RES}
+  ldr r1, =0xE000ED28
+  ldr r2, [r1]
+  str r2, [r0]
+  ldr r2, [r1, #4]
+  str r2, [r0, #4]
+"""
+
 VECTORS = ["NMI_H", "HardFault_H", "MemManage_H", "BusFault_H", "UsageFault_H", "0", "0", "0", "0", "SVC_H",
            "0", "0", "PendSV_H", "SysTick_H"] + ["IRQ_H"] * 8
 
@@ -211,14 +218,7 @@ VECTORS = ["NMI_H", "HardFault_H", "MemManage_H", "BusFault_H", "UsageFault_H", 
 class SyntheticSimTests(unittest.TestCase):
     """Tiny firmwares run by emu.Sim: handlers write what they see to RES.. (SRAM survives resets)."""
 
-    LD = """MEMORY { FLASH (rx) : ORIGIN = 0x08000000, LENGTH = 1024K  RAM (rwx) : ORIGIN = 0x20000000, LENGTH = 128K }
-_stack_end = 0x20000000;
-_stack_start = 0x20001000;
-SECTIONS {
-  .vector_table ORIGIN(FLASH) : { KEEP(*(.vector_table)) } > FLASH
-  .text : { *(.text .text.*) } > FLASH
-}
-"""
+    LD = test_boot.SyntheticFirmwareTests.LD
     DEFAULT_HANDLERS = {"NMI_H": "b .", "HardFault_H": "b .", "MemManage_H": "b .", "BusFault_H": "b .",
                         "UsageFault_H": "b .", "SVC_H": "b .", "PendSV_H": "bx lr", "SysTick_H": "bx lr",
                         "IRQ_H": "bx lr"}
@@ -588,13 +588,7 @@ fault_here:
     def test_undefined_instruction_is_a_forced_hardfault(self):
         path = self.build("""  udf #0
 1: b 1b
-""", HardFault_H=f"""  ldr r0, ={RES}
-  ldr r1, =0xE000ED28
-  ldr r2, [r1]
-  str r2, [r0]
-  ldr r2, [r1, #4]
-  str r2, [r0, #4]
-1: wfe
+""", HardFault_H=HARDFAULT_SAVES_CFSR_HFSR + """1: wfe
   b 1b""")
         m = self.sim(path)
         m.run_until(0.001)
@@ -606,13 +600,7 @@ fault_here:
         path = self.build("""  ldr r0, =0x60000001
   blx r0
 1: b 1b
-""", HardFault_H=f"""  ldr r0, ={RES}
-  ldr r1, =0xE000ED28
-  ldr r2, [r1]
-  str r2, [r0]
-  ldr r2, [r1, #4]
-  str r2, [r0, #4]
-  ldr r2, [sp, #24]
+""", HardFault_H=HARDFAULT_SAVES_CFSR_HFSR + """  ldr r2, [sp, #24]
   str r2, [r0, #8]
 1: wfe
   b 1b""")
