@@ -973,3 +973,52 @@ fn pps_edges_put_the_reports_on_the_whole_second() {
     // covers), and the FPGA plays frames at their exact frame times: what remains is the µs rounding.
     assert!(worst(&after) <= 2, "{} µs after the edges", worst(&after));
 }
+
+/// A calibration store at a sagging rail (VDDA below `STORE_VDD_MIN_MV`, where x32 programming could leave weak
+/// bits) is refused before anything is erased: the commit's ack says `Storage`, Housekeeping counts the refusal, the
+/// table stays in force until the next reset, and that reset finds the flash as it was (the factory default).
+#[test]
+fn a_store_at_low_vdd_is_refused_and_nothing_is_erased() {
+    use firmware::app::{Platform, STORE_VDD_MIN_MV};
+    fn sagging() -> Option<(i16, u16)> {
+        Some((2_500, STORE_VDD_MIN_MV - 150))
+    }
+    let mut sat = Sat::boot_on(
+        simflash::erased(),
+        Some(firmware::layout::BUS_BAUD),
+        PipelineConfig::DEFAULT,
+        Platform {
+            mcu_sensors: Some(sagging),
+            ..Platform::default()
+        },
+    );
+    let mut ground = Ground::new();
+    let table9 = table(9);
+    let acks = sat.run(MINUTE, async |_, board| {
+        let mut acks = Vec::new();
+        for (tag, cmd) in upload_commands(&table9, shared::telemetry::CAL_CHUNK_MAX, 3) {
+            acks.push(ground.transact(board, tag, cmd).await);
+        }
+        Timer::after(Duration::from_millis(1500)).await;
+        ground.receive(board);
+        acks
+    });
+    let commit = acks.last().unwrap();
+    assert_eq!(commit.result, Err(Reject::Storage), "{acks:?}");
+    assert!(acks[..acks.len() - 1].iter().all(|a| a.result.is_ok()));
+    let hk = housekeeping(&ground.telemetry);
+    let last = hk.last().unwrap();
+    assert_eq!((last.stores_refused_low_vdd, last.cal_stores), (1, [0, 0]));
+    assert_eq!(
+        sat.app.pipeline.try_lock().unwrap().calibration(),
+        &table9,
+        "in force until the next reset"
+    );
+    let sat = Sat::boot(sat.into_flash(), None);
+    let p = sat.app.pipeline.try_lock().unwrap();
+    assert_eq!(
+        p.calibration_source(),
+        CalSource::Factory,
+        "nothing was written"
+    );
+}
