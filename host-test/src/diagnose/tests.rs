@@ -7,7 +7,7 @@ fn gauss(seed: u64) -> impl FnMut() -> f64 {
 }
 
 /// 16 groups of white noise; gyro axes get `rho` of common-mode noise.
-fn cluster(n: usize, rho: f64, seed: u64) -> Recording {
+pub(super) fn cluster(n: usize, rho: f64, seed: u64) -> Recording {
     let mut rec = Recording {
         t_s: (0..n).map(|i| i as f64 * 0.05).collect(),
         ..Default::default()
