@@ -231,7 +231,7 @@ pub(super) fn candidates(
         .filter(|o| o.heldout_score > o.heldout_threshold)
         .map(|o| o.sensor)
         .collect();
-    let mut deps = departures(an, first, hf, tau0, opts);
+    let mut deps = departures(an, first, hf, typ, tau0, opts);
     deps.retain(|d| !lined.contains(&d.sensor));
     cands.extend(drift_candidate(w, &deps));
     let members: Vec<usize> = (0..ns)

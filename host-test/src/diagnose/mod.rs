@@ -587,11 +587,17 @@ fn typical_sensor(
 
 /// Adds what is named on one sensor's own evidence to `chosen`: a sensor's own drift, confirmed on the held-out
 /// half, and a sensor's own line, found on the first half and confirmed at its period on the held-out half.
-fn name_per_sensor(cands: &[Candidate], chosen: &mut Vec<usize>, hh: &Half, opts: &Options) {
+fn name_per_sensor(
+    cands: &[Candidate],
+    chosen: &mut Vec<usize>,
+    hh: &Half,
+    typ: &Terms,
+    opts: &Options,
+) {
     if let Some(c) = cands.iter().position(|c| c.kind == "sensor_drift")
         && !chosen.contains(&c)
         && cands[c].cross.iter().any(|x| match x {
-            Cross::Own { sensor, .. } => confirmed(hh, *sensor, opts),
+            Cross::Own { sensor, .. } => confirmed(hh, typ, *sensor, opts),
             _ => false,
         })
     {
@@ -668,7 +674,7 @@ fn analyse_axis(
     if gave_up {
         chosen.clear();
     }
-    name_per_sensor(&cands, &mut chosen, &hh, opts);
+    name_per_sensor(&cands, &mut chosen, &hh, &typ_terms, opts);
     AxisState {
         hf,
         hw,

@@ -82,8 +82,25 @@ pub fn scan_statistic(z: &[f64]) -> f64 {
 }
 
 /// The (1 − p) quantile of [`scan_statistic`] over `n` null z-scores (correlated as [`octave_corr`]), from 40,000
-/// seeded Monte Carlo draws (deterministic).
+/// seeded Monte Carlo draws (deterministic: computed once per `(n, p)` in a process and remembered).
 pub fn scan_threshold(n: usize, p: f64) -> f64 {
+    use std::collections::BTreeMap;
+    use std::sync::{Mutex, OnceLock};
+    static KNOWN: OnceLock<Mutex<BTreeMap<(usize, u64), f64>>> = OnceLock::new();
+    let known = KNOWN.get_or_init(|| Mutex::new(BTreeMap::new()));
+    let key = (n, p.to_bits());
+    if let Some(t) = known.lock().ok().and_then(|m| m.get(&key).copied()) {
+        return t;
+    }
+    let t = scan_threshold_drawn(n, p);
+    if let Ok(mut m) = known.lock() {
+        m.insert(key, t);
+    }
+    t
+}
+
+/// [`scan_threshold`] drawn.
+fn scan_threshold_drawn(n: usize, p: f64) -> f64 {
     use rand_xoshiro::Xoshiro256PlusPlus;
     use rand_xoshiro::rand_core::SeedableRng;
     pub(super) const DRAWS: usize = 40_000;

@@ -216,9 +216,12 @@ mod tests {
             "{text}"
         );
         let d = &r.disturbances[0];
+        let sig3 = super::super::report::sig3;
         let line = format!(
-            "\n  accel y: {:.3} … {:.3} s after the first sample, variance ×{:.1}",
-            d.start_s, d.end_s, d.variance_ratio
+            "\n  accel y: {} … {} s after the first sample, variance ×{}",
+            sig3(d.start_s),
+            sig3(d.end_s),
+            sig3(d.variance_ratio)
         );
         assert!(text.contains(&line), "{text}");
     }

@@ -7,7 +7,7 @@ fn gauss(seed: u64) -> impl FnMut() -> f64 {
 }
 
 /// 16 groups of white noise; gyro axes get `rho` of common-mode noise.
-fn cluster(n: usize, rho: f64, seed: u64) -> Recording {
+pub(super) fn cluster(n: usize, rho: f64, seed: u64) -> Recording {
     let mut rec = Recording {
         t_s: (0..n).map(|i| i as f64 * 0.05).collect(),
         ..Default::default()
@@ -157,4 +157,25 @@ fn blocks_are_found_by_clustering_the_correlation() {
         .filter(|c| c.len() >= 2)
         .collect();
     assert_eq!(cl, vec![vec![0, 1, 2, 3], vec![4, 5, 6, 7]]);
+}
+
+#[test]
+fn trigamma_matches_its_closed_forms() {
+    // ψ′(1) = π²/6, ψ′(1/2) = π²/2, ψ′(n + 1) = ψ′(n) − 1/n² (Abramowitz & Stegun 6.4.2, 6.4.4, 6.4.6).
+    let pi2 = std::f64::consts::PI.powi(2);
+    for (x, want) in [
+        (1.0, pi2 / 6.0),
+        (0.5, pi2 / 2.0),
+        (2.0, pi2 / 6.0 - 1.0),
+        (4.0, pi2 / 6.0 - 1.0 - 0.25 - 1.0 / 9.0),
+    ] {
+        let got = sensors::trigamma(x);
+        assert!(
+            (got / want - 1.0).abs() < 1e-9,
+            "ψ′({x}) = {got}, want {want}"
+        );
+    }
+    // Large x: x ψ′(x) = 1 + 1/(2x) + 1/(6x²) + O(x⁻⁴).
+    let x = 1e4;
+    assert!((sensors::trigamma(x) * x - 1.0 - 0.5 / x - 1.0 / (6.0 * x * x)).abs() < 1e-13);
 }

