@@ -1097,10 +1097,10 @@ fn trim_hsi<B: core::borrow::BorrowMut<PipelineMemory>>(
 ) -> Option<TrimWindow> {
     let link = p.link_counters();
     let frames = u64::from(link.frames).saturating_add(u64::from(link.frames_dropped));
-    let decimation = p.health().decimation?;
     if p.mode() != shared::telemetry::Mode::Stream {
         return None;
     }
+    let decimation = p.decimation()?;
     let fresh = Some(TrimWindow {
         at: now,
         frames,

@@ -289,6 +289,11 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
         &self.config
     }
 
+    /// The FPGA decimation of the last frame (`None` before the first), as Health reports it.
+    pub fn decimation(&self) -> Option<u16> {
+        self.intake.decimation()
+    }
+
     /// Link statistics.
     pub fn link_counters(&self) -> &LinkCounters {
         self.intake.decoder.counters()

@@ -25,7 +25,7 @@ impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
             link: *self.intake.decoder.counters(),
             cal_id: self.cal.table.cal_id,
             cal_source: self.cal.source,
-            decimation: self.intake.decimation(),
+            decimation: self.decimation(),
             frames_per_output: self.config.frames_per_output,
             fusion: fusion.mode,
             robust: fusion.robust,
