@@ -42,7 +42,8 @@ pub struct BootReport {
     pub refusal: u8,
     /// The version in ACTIVE's header after the boot (0: no valid header, e.g. flashed with a probe).
     pub active_version: u32,
-    /// The version in DFU's header (0: none).
+    /// The version in DFU's header as this boot found it, before any swap (0: none): the image swapped in, refused,
+    /// or (after a revert) reverted.
     pub dfu_version: u32,
 }
 

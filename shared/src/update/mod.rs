@@ -1,12 +1,14 @@
 //! In-orbit software update, sans-IO (`docs/update.md`): the signed image ([`image`]), the upload protocol's
-//! messages on their own CSP port, the [`Receiver`] that writes an upload into the DFU slot, and the
-//! [`boot_report`] the bootloader leaves for the application.
+//! messages on their own CSP port, the [`Receiver`] that writes an upload into the DFU slot, the bootloader's
+//! decision ([`boot::prepare`]: verify, swap or revert, on embassy-boot) and the [`boot_report`] it leaves for the
+//! application.
 //!
 //! The receiver works on any `NorFlash` DFU slot and a [`BootControl`] (embassy-boot's state partition on the
 //! satellite, a model in the tests). It follows the calibration store's rules: one sector erase per acknowledged
 //! command, nothing written unless the mode is `Idle`, every refusal typed and counted, and the slot itself is the
 //! session's memory, so that an upload resumes after a lost link or a reset.
 
+pub mod boot;
 pub mod boot_report;
 pub mod image;
 
@@ -17,6 +19,10 @@ use crate::crc::crc32c;
 use embedded_storage::nor_flash::NorFlash;
 use heapless::Vec;
 use serde::{Deserialize, Serialize};
+
+/// This board's identity in image headers: the IMU cluster's STM32F405 board, revision 1 (`"IMU"` and the chip).
+/// An image signed for another board is refused ([`ImageError::Board`]).
+pub const BOARD_ID: u32 = 0x4F05_1601;
 
 /// The update service's CSP port on the satellite (replies go back to the request's source port).
 pub const PORT_UPDATE: u8 = 12;
@@ -132,6 +138,8 @@ pub enum UpdateError {
     NotOpen,
     /// Flash writes need `Mode::Idle`.
     NotIdle,
+    /// VDD is below what flash programming needs (the calibration store's threshold).
+    LowVoltage,
     /// Sectors are erased in order: this is the next one.
     SectorOrder {
         /// The sector expected.
@@ -281,8 +289,9 @@ pub struct Context<'a> {
     pub running_version: u32,
     /// Largest image, header included (the ACTIVE slot).
     pub max_image_len: u32,
-    /// `Mode::Idle`: flash writes allowed.
-    pub idle: bool,
+    /// Whether flash writes are allowed now, or why not ([`UpdateError::NotIdle`]: frames are being processed;
+    /// [`UpdateError::LowVoltage`]: VDD below what programming needs).
+    pub writable: Result<(), UpdateError>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -446,9 +455,7 @@ impl Receiver {
                 Ok(UpdateReply::Verified)
             }
             UpdateRequest::Commit => {
-                if !ctx.idle {
-                    return Err(UpdateError::NotIdle);
-                }
+                ctx.writable?;
                 let version = self.verify(dfu, ctx)?;
                 boot.mark_updated().map_err(|_| UpdateError::Flash)?;
                 if let Some(s) = self.session.as_mut() {
@@ -536,9 +543,7 @@ impl Receiver {
         if sector != s.erased || sector >= s.sectors {
             return Err(UpdateError::SectorOrder { expected: s.erased });
         }
-        if !ctx.idle {
-            return Err(UpdateError::NotIdle);
-        }
+        ctx.writable?;
         let size = F::ERASE_SIZE as u32;
         let from = u32::from(sector)
             .checked_mul(size)
@@ -615,9 +620,7 @@ impl Receiver {
         dfu: &mut F,
         ctx: &Context<'_>,
     ) -> Result<UpdateReply, UpdateError> {
-        if !ctx.idle {
-            return Err(UpdateError::NotIdle);
-        }
+        ctx.writable?;
         let at = s
             .next_offset
             .checked_add(image::HEADER_LEN as u32)
