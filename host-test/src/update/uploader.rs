@@ -26,7 +26,8 @@ use std::time::{Duration, Instant};
 /// The upload's parameters.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct UploadConfig {
-    /// Chunks sent ahead of the last acknowledged one (go-back-N window), ≥ 1.
+    /// Chunks in flight (go-back-N window), ≥ 1. The satellite's bus ring bounds it
+    /// ([`max_window`](super::link::max_window)): `ground fw-upload` refuses more.
     pub window: usize,
     /// Payload bytes per chunk: a multiple of 4, at most [`CHUNK_MAX`].
     pub chunk_len: usize,
