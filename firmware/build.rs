@@ -1,5 +1,6 @@
-//! For the MCU build only: copies `memory.x` into OUT_DIR (so the linker finds it via `-L`) and adds the
-//! cortex-m-rt / defmt linker scripts to the `firmware` binary. The host build (SITL, tests) links as usual.
+//! For the MCU build only: copies `memory.x` (this crate's: the application's memory map) into OUT_DIR, puts that on
+//! the `firmware` binary's linker path and adds the cortex-m-rt / defmt linker scripts to it. The host build (SITL,
+//! tests) links as usual.
 use std::env;
 use std::fs;
 use std::path::PathBuf;
@@ -39,9 +40,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if env::var("CARGO_CFG_TARGET_OS").as_deref() != Ok("none") {
         return Ok(());
     }
-    fs::copy("../memory.x", out.join("memory.x")).map_err(|e| format!("copy memory.x: {e}"))?;
-    println!("cargo:rustc-link-search={}", out.display());
-    println!("cargo:rerun-if-changed=../memory.x");
+    fs::copy("memory.x", out.join("memory.x")).map_err(|e| format!("copy memory.x: {e}"))?;
+    // For the `firmware` binary only: a `rustc-link-search` would reach every crate that links this library too
+    // (the bootloader, which has its own `memory.x`). Neither script is at the workspace's root, where the linker,
+    // run from there, would find it before any `-L` path.
+    // Two arguments, as flip-link reads them (`-L`, then the path) when it looks for the RAM region.
+    println!("cargo:rustc-link-arg-bin=firmware=-L");
+    println!("cargo:rustc-link-arg-bin=firmware={}", out.display());
+    println!("cargo:rerun-if-changed=memory.x");
 
     println!("cargo:rustc-link-arg-bin=firmware=--nmagic");
     println!("cargo:rustc-link-arg-bin=firmware=-Tlink.x");

@@ -8,7 +8,7 @@
 //! | CubeSat bus         | USART2     | PA3 RX / PA2 TX  | 115200 baud, RX DMA1 stream 5 ring, TX DMA1 stream 6 |
 //! | status LED          | GPIO       | PC13             | open drain, 2 MHz: sinks the LED's current (below) |
 //! | watchdog            | IWDG       | -                | LSI ≈ 32 kHz, 8 s, started before anything else |
-//! | calibration slots   | FLASH      | -                | sectors 1 (A) and 2 (B), 0x0800_4000, x32 erase |
+//! | calibration slots   | FLASH      | -                | sectors 2 (A) and 3 (B), 0x0800_8000, x32 erase |
 //! | time driver         | TIM5       | -                | embassy `time-driver-tim5`, 16 kHz tick   |
 //! | PPS in (optional)   | TIM2 CH1   | PA15 (AF1)       | input capture, rising edge, 32-bit counter at 1 MHz |
 //! | core clock          | RCC        | -                | HCLK 168 MHz streaming, 84 MHz in Idle (`CoreClock`) |
@@ -46,7 +46,7 @@ use embassy_stm32::usart::{self, RingBufferedUartRx, Uart, UartTx};
 use embassy_stm32::{bind_interrupts, dma, peripherals};
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
-use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
+use firmware::chip::Flash32;
 use shared::pipeline::PipelineMemory;
 use static_cell::{ConstStaticCell, StaticCell};
 
@@ -190,13 +190,9 @@ dma_errors! {
 
 // FPGA_BAUD: USART1 on PCLK2 = 84 MHz, 84 MHz / 2 Mbaud = 42, exact with 16× oversampling.
 // Budget: 240-byte frames at 604.8 /s = 1.452 Mbit/s with start/stop bits = 73 % of the line.
-/// IWDG timeout, nominal (LSI assumed 32 kHz; at the fastest LSI, 47 kHz, it is 5.4 s). It must exceed the longest
-/// flash stall (a 16 KiB erase, ≤ 0.5 s) plus two watchdog periods: 4.4 s of margin at the fastest LSI.
-pub const WATCHDOG_TIMEOUT_US: u32 = 8_000_000;
-
 /// Calibration window inside embassy's `Bank1Region1` (0x0800_0000 …, 4 sectors of 16 KiB).
 const REGION1_BASE: u32 = 0x0800_0000;
-const CALIB_LEN: u32 = (CAL_SECTORS * CAL_SECTOR_LEN) as u32; // sectors 1 and 2
+const CALIB_LEN: u32 = (CAL_SECTORS * CAL_SECTOR_LEN) as u32; // sectors 2 and 3
 
 /// FPGA frames: `embedded_io_async::Read` over the DMA ring.
 pub type FpgaRx = RingBufferedUartRx<'static>;
@@ -206,11 +202,13 @@ pub type FpgaTx = UartTx<'static, Async>;
 pub type BusRx = RingBufferedUartRx<'static>;
 /// Bus transmit: `embedded_io_async::Write`.
 pub type BusTx = UartTx<'static, Async>;
-/// `embedded_storage::nor_flash::NorFlash` over sectors 1 and 2 only.
-pub type CalibFlash = BlockingPartition<'static, NoopRawMutex, Flash32>;
+/// Flash sectors 0–3 (embassy's `Bank1Region1`) with x32 erases (`firmware::chip::Flash32`).
+pub type Region1 = Flash32<Bank1Region1<'static, Blocking>>;
+/// `embedded_storage::nor_flash::NorFlash` over sectors 2 and 3 only.
+pub type CalibFlash = BlockingPartition<'static, NoopRawMutex, Region1>;
 
 /// Flash region 1 (sectors 0–3), shared by its partitions (today only the calibration slots).
-static FLASH_REGION1: StaticCell<BlockingMutex<NoopRawMutex, RefCell<Flash32>>> = StaticCell::new();
+static FLASH_REGION1: StaticCell<BlockingMutex<NoopRawMutex, RefCell<Region1>>> = StaticCell::new();
 /// Status LED (open drain, see the module docs): `embedded_hal::digital::OutputPin`.
 pub type Led = OutputOpenDrain<'static>;
 
@@ -254,57 +252,8 @@ impl firmware::app::CoreClock for CoreClock {
     }
 }
 
-/// IWDG prescaler (PR register value) and reload for [`WATCHDOG_TIMEOUT_US`] at the nominal 32 kHz LSI: the
-/// smallest prescaler 4·2^PR whose longest period (4096 counts) reaches the timeout, then the reload that gives it.
-const WATCHDOG_PR_RL: (u8, u16) = {
-    let mut pr = 0u8;
-    while pr < 6 && 4096 * (4u64 << pr) * 1_000_000 / 32_000 < WATCHDOG_TIMEOUT_US as u64 {
-        pr += 1;
-    }
-    let counts = WATCHDOG_TIMEOUT_US as u64 * 32_000 / 1_000_000 / (4u64 << pr);
-    assert!(counts >= 1 && counts <= 4096, "IWDG timeout out of range");
-    (pr, (counts - 1) as u16)
-};
-
-/// The independent watchdog, running from [`start_watchdog`] on: `pet` reloads it.
-pub struct Watchdog(());
-
-impl Watchdog {
-    /// Reloads the counter.
-    pub fn pet(&mut self) {
-        embassy_stm32::pac::IWDG
-            .kr()
-            .write(|w| w.set_key(IWDG_KEY_RELOAD));
-    }
-}
-
-const IWDG_KEY_RELOAD: embassy_stm32::pac::iwdg::vals::Key =
-    embassy_stm32::pac::iwdg::vals::Key::RESET;
-
-/// Starts the IWDG with its [`WATCHDOG_TIMEOUT_US`] timeout: the first thing `main` does, before the clocks, so that
-/// a hang anywhere in init (embassy waits for ready bits without a timeout) resets the board. Register access only
-/// (the IWDG runs from the LSI, which starting it turns on; it needs no bus clock). Freezes it while a debugger
-/// halts the core. RM0090 §21.3: start (0xCCCC), unlock PR/RLR (0x5555), write them, reload (0xAAAA).
-pub fn start_watchdog() -> Watchdog {
-    use embassy_stm32::pac::iwdg::vals::{Key, Pr};
-    use embassy_stm32::pac::{DBGMCU, IWDG};
-    DBGMCU.apb1fzr().modify(|w| w.set_iwdg(true));
-    let (pr, rl) = WATCHDOG_PR_RL;
-    IWDG.kr().write(|w| w.set_key(Key::START));
-    IWDG.kr().write(|w| w.set_key(Key::ENABLE));
-    IWDG.pr().write(|w| w.set_pr(Pr::from_bits(pr)));
-    IWDG.rlr().write(|w| w.set_rl(rl));
-    // The new values reach the LSI domain a few LSI cycles later (PVU/RVU set until then: ≈ 0.2 ms with the LSI's
-    // start); a reload before that would load the old reload value. Bounded: 2¹⁶ polls ≫ 0.2 ms at 16 MHz.
-    for _ in 0..(1u32 << 16) {
-        let sr = IWDG.sr().read();
-        if !sr.pvu() && !sr.rvu() {
-            break;
-        }
-    }
-    IWDG.kr().write(|w| w.set_key(IWDG_KEY_RELOAD));
-    Watchdog(())
-}
+/// The independent watchdog and its start (`firmware::chip`: the bootloader starts it the same way, first thing).
+pub use firmware::chip::{Watchdog, start_watchdog};
 
 /// The pipeline's large buffers (60.4 KiB: the Allan accumulators of all 102 channels and the calibration upload's
 /// bytes): in the 64 KiB core-coupled RAM, which only the CPU reaches (neither is ever a DMA buffer) and which
@@ -528,7 +477,7 @@ pub fn init(after_clock_failure: bool) -> Board {
         .into_blocking_regions()
         .bank1_region1;
     let region1 = FLASH_REGION1.init(BlockingMutex::new(RefCell::new(Flash32(region1))));
-    // Sectors 1–2; the partition checks at boot that both ends are on sector boundaries.
+    // Sectors 2–3; the partition checks at boot that both ends are on sector boundaries.
     let calib = BlockingPartition::new(region1, CAL_FLASH_BASE - REGION1_BASE, CALIB_LEN);
 
     let led = OutputOpenDrain::new(p.PC13, Level::High, Speed::Low);
@@ -679,62 +628,6 @@ fn enable_flash_accelerator() {
         w.set_icen(true);
         w.set_dcen(true);
     });
-}
-
-/// Flash sectors 0–3 with erases at x32 parallelism (embassy-stm32 0.6 erases with whatever PSIZE is in FLASH_CR,
-/// which its writes leave at x8: a 16 KiB erase then takes up to 0.8 s instead of 0.5 s) and a data-cache reset
-/// after every erase and program (the D-cache may hold the old contents of what was just changed; RM0090 §3.5.2).
-/// x32 needs VDD 2.7–3.6 V (DS8626): the board's 3.3 V rail.
-pub struct Flash32(Bank1Region1<'static, Blocking>);
-
-impl ErrorType for Flash32 {
-    type Error = embassy_stm32::flash::Error;
-}
-
-impl ReadNorFlash for Flash32 {
-    const READ_SIZE: usize = <Bank1Region1<'static, Blocking> as ReadNorFlash>::READ_SIZE;
-    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
-        self.0.read(offset, bytes)
-    }
-    fn capacity(&self) -> usize {
-        self.0.capacity()
-    }
-}
-
-impl NorFlash for Flash32 {
-    const WRITE_SIZE: usize = <Bank1Region1<'static, Blocking> as NorFlash>::WRITE_SIZE;
-    const ERASE_SIZE: usize = <Bank1Region1<'static, Blocking> as NorFlash>::ERASE_SIZE;
-    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
-        use embassy_stm32::pac::FLASH;
-        use embassy_stm32::pac::flash::vals::Psize;
-        // Unlock (embassy's erase then skips its own unlock and keeps CR's PSIZE: it only `modify`s SER/SNB/STRT,
-        // and locks again when done).
-        cortex_m::interrupt::free(|_| {
-            if FLASH.cr().read().lock() {
-                FLASH.keyr().write_value(0x4567_0123);
-                FLASH.keyr().write_value(0xCDEF_89AB);
-            }
-            FLASH.cr().modify(|w| w.set_psize(Psize::PSIZE32));
-        });
-        let r = self.0.erase(from, to);
-        reset_data_cache();
-        r
-    }
-    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
-        let r = self.0.write(offset, bytes);
-        reset_data_cache();
-        r
-    }
-}
-
-fn reset_data_cache() {
-    use embassy_stm32::pac::FLASH;
-    if FLASH.acr().read().dcen() {
-        FLASH.acr().modify(|w| w.set_dcen(false));
-        FLASH.acr().modify(|w| w.set_dcrst(true));
-        FLASH.acr().modify(|w| w.set_dcrst(false));
-        FLASH.acr().modify(|w| w.set_dcen(true));
-    }
 }
 
 /// Tries the HSE before embassy's RCC init (which would wait forever for it).

@@ -3,8 +3,10 @@
 //! loops on the PC with the hardware replaced at the edges ([`sim`]): the SITL binary and the scenario tests.
 //!
 //! - [`app`]: the tasks' loops and the state they share ([`app::App`]).
-//! - [`layout`]: the STM32F405 facts the loops and the models both need (flash sectors, line rates, ring sizes,
-//!   the longest store stall, the stack the flight build leaves).
+//! - `chip` (features `chip`, `stm32`): the register-level code the bootloader shares (IWDG start, x32 flash
+//!   erases).
+//! - [`layout`]: the STM32F405 facts the loops, the models and the bootloader need (the flash memory map, the
+//!   watchdog's timing, line rates, ring sizes, the longest store stall, the stack the flight build leaves).
 //! - [`mcu_sensors`]: the MCU's temperature and VDDA from its ADC codes and factory calibration.
 //! - [`resets`]: the reset history kept across resets, and the crash-loop counter.
 //! - [`tasks`]: the task table, which loop each task runs with which edges of the board, for both builds.
@@ -23,6 +25,8 @@ extern crate std;
 mod log;
 
 pub mod app;
+#[cfg(feature = "chip")]
+pub mod chip;
 pub mod layout;
 pub mod mcu_sensors;
 pub mod resets;

@@ -1,5 +1,5 @@
 //! Logging that builds on both targets: `defmt` on the MCU (feature `defmt`), the `log` crate on the host (feature
-//! `sim`). Format strings use `{:?}` (both backends accept it: defmt's `Format`, std's `Debug`), and the values
+//! `sim`), nothing in the bootloader's build of this crate. Format strings use `{:?}` (both backends accept it: defmt's `Format`, std's `Debug`), and the values
 //! logged implement both ([`Loggable`]).
 
 /// What a logged value must implement on this build.
@@ -20,6 +20,9 @@ macro_rules! log_at {
         defmt::$defmt!($($arg)*);
         #[cfg(all(not(feature = "defmt"), feature = "sim"))]
         ::log::$log!($($arg)*);
+        // Neither (the bootloader's build of this crate, feature `chip`): the arguments are still used.
+        #[cfg(not(any(feature = "defmt", feature = "sim")))]
+        let _ = format_args!($($arg)*);
     }};
 }
 
