@@ -2,6 +2,13 @@
 //! CSP/KISS to the firmware's own tasks over the simulated bus, through loss, duplicates, corruption and a reset;
 //! then `shared::update::boot::prepare` (what the bootloader runs) swaps the image on the flash models, the trial
 //! image confirms itself, or, reset too early, is reverted.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
+#![allow(clippy::arithmetic_side_effects)]
 
 mod common;
 

@@ -17,7 +17,8 @@ use shared::storage::mock::MockFlash;
 
 use super::clock;
 use crate::layout::{
-    CAL_SECTOR_LEN, CAL_SECTORS, ERASE_SECTOR_US, FLASH_WRITE_LEN, PROGRAM_WORD_US,
+    CAL_SECTOR_LEN, CAL_SECTORS, ERASE_IMAGE_SECTOR_US, ERASE_SECTOR_US, ERASE_STATE_SECTOR_US,
+    FLASH_WRITE_LEN, IMAGE_SECTOR_LEN, PROGRAM_WORD_US, STATE_LEN,
 };
 
 /// The calibration sectors as a RAM model.
@@ -121,31 +122,28 @@ impl NorFlash for FileFlash {
     }
 }
 
-/// Worst-case erase time of one F405 sector of `len` bytes at x32, µs (DS8626: 16 KiB 0.5 s, 64 KiB 1.1 s,
-/// 128 KiB 2 s; smaller blocks, as the tests' models have, as a 16 KiB sector).
+/// Worst-case erase time of one F405 sector of `len` bytes at x32, µs ([`crate::layout`]: 16 KiB 0.5 s, 64 KiB
+/// 1.1 s, 128 KiB 2 s; smaller blocks, as the tests' models have, as a 16 KiB sector).
 pub const fn erase_max_us(len: usize) -> u32 {
-    if len > 64 * 1024 {
-        2_000_000
-    } else if len > 16 * 1024 {
-        1_100_000
+    if len > STATE_SECTOR_LEN {
+        ERASE_IMAGE_SECTOR_US[1]
+    } else if len > CAL_SECTOR_LEN {
+        ERASE_STATE_SECTOR_US[1]
     } else {
         ERASE_SECTOR_US[1]
     }
 }
 
 /// One DFU sector (sectors 7–9 of the F405: 128 KiB).
-pub const DFU_SECTOR_LEN: usize = 128 * 1024;
+pub const DFU_SECTOR_LEN: usize = IMAGE_SECTOR_LEN as usize;
 /// The boot state sector (sector 4: 64 KiB).
-pub const STATE_SECTOR_LEN: usize = 64 * 1024;
+pub const STATE_SECTOR_LEN: usize = STATE_LEN as usize;
 /// The DFU slot as a RAM model: three 128 KiB sectors.
 pub type DfuModel = MockFlash<DFU_SECTOR_LEN>;
 /// The boot state partition as a RAM model.
 pub type StateModel = MockFlash<STATE_SECTOR_LEN>;
 /// The update service on the models, stalling as the F405 does.
 pub type SimUpdater = crate::update::Updater<Stalling<DfuModel>, Stalling<StateModel>>;
-/// ACTIVE, the largest image with its header (sectors 5–6).
-pub const ACTIVE_LEN: u32 = 2 * DFU_SECTOR_LEN as u32;
-
 /// The update service on erased models (no bootloader report), images checked with `public_key`, the running image
 /// at `running_version`.
 pub fn updater(public_key: [u8; 32], running_version: u32) -> SimUpdater {
@@ -168,9 +166,9 @@ pub fn updater_on(
         Stalling(dfu),
         Stalling(state),
         public_key,
-        shared::update::BOARD_ID,
+        crate::layout::BOARD_ID,
         running_version,
-        ACTIVE_LEN,
+        crate::layout::ACTIVE_LEN,
         None,
     )
 }
