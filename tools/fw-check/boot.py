@@ -1073,7 +1073,8 @@ class FlashIf(Periph):
 
     # -- operations --------------------------------------------------------------------------------------------
     def _done(self, errors: int = 0):
-        """End of an operation: flags, BSY for the next `bsy_polls` reads of SR."""
+        """End of an operation: flags, BSY for the next `bsy_polls` reads of SR (the CPU stalled for the operation
+        already: BSY is only there to exercise the firmware's wait loop)."""
         s = self.s
         if errors:
             s.f_sr |= errors
@@ -1081,7 +1082,7 @@ class FlashIf(Periph):
                 s.f_sr |= self.OPERR
         elif s.f_cr & self.EOPIE:
             s.f_sr |= self.EOP
-        s.f_busy = self.m.flash_bsy_polls
+        s.f_busy = 0 if errors else self.m.flash_bsy_polls  # a refused operation does not start
 
     def _wrp(self, snb: int) -> bool:
         return not (self.s.f_optcr >> 16) & (1 << snb)
@@ -2404,6 +2405,11 @@ def check(m: Machine, args) -> tuple[list, dict]:
         "LATENCY=5, PRFTEN=ICEN=DCEN=1")
     res("flash wait states sufficient at every clock change", not m.wait_state_violations,
         "; ".join(m.wait_state_violations) or "ok", "HCLK <= 30 MHz x (LATENCY+1)")
+    fl = fig["flash"] = m.flash_summary()
+    res("flash interface used as RM0090 says (no write without PG, none while locked, no refused operation)",
+        not fl["violation_count"], f"{fl['violation_count']} violation(s)"
+        + (": " + "; ".join(v["text"] for v in fl["violations"][:3]) if fl["violation_count"] else
+           f"; {fl['erase_count']} erase(s), {fl['programs']} program(s)"), "none", at_idle=False)
 
     # clocks
     rcc = m.rcc
@@ -2551,7 +2557,8 @@ def report(m: Machine, img: Image, results, fig, args):
     if m.unknown_blocks:
         print(f"  reserved blocks touched: {', '.join(run['unknown_blocks'])}")
     for e in m.events:
-        if e["kind"] in ("rcc_pllon", "clock", "iwdg_start", "dma_en", "cpacr", "flash_latency", "rcc_rmvf"):
+        if e["kind"] in ("rcc_pllon", "clock", "iwdg_start", "dma_en", "cpacr", "flash_latency", "rcc_rmvf",
+                         "flash_erase", "direct_boot", "vtor", "images"):
             print(f"    {e['t_us'] / 1e3:8.3f} ms  insn {e['insn']:>9,}  {e['text']}")
     if fig.get("nvic_enabled"):
         bound = [i for i in fig["nvic_enabled"] if not i["default_handler"]]
