@@ -328,9 +328,14 @@ class Image:
         if elf["e_machine"] != "EM_ARM":
             raise ToolError(f"boot.py: {path} is not an ARM ELF")
         self.segments = []  # (paddr, vaddr, data, memsz)
+        # PT_LOAD segments that hold sections (a linker may also load the ELF and program headers, in front of
+        # the first section: not part of the image)
+        alloc = [(s["sh_addr"], s["sh_size"]) for s in elf.iter_sections() if s["sh_flags"] & 2 and s["sh_size"]]
         for seg in elf.iter_segments():
             if seg["p_type"] == "PT_LOAD" and seg["p_memsz"]:
-                self.segments.append((seg["p_paddr"], seg["p_vaddr"], seg.data(), seg["p_memsz"]))
+                lo, hi = seg["p_vaddr"], seg["p_vaddr"] + seg["p_memsz"]
+                if any(lo <= a < hi for a, _ in alloc):
+                    self.segments.append((seg["p_paddr"], seg["p_vaddr"], seg.data(), seg["p_memsz"]))
         self.sections = {s.name: (s["sh_addr"], s["sh_size"]) for s in elf.iter_sections() if s["sh_addr"]}
         # symbols
         raw_syms, raw_objs = [], []

@@ -1334,6 +1334,8 @@ class Sim(boot.Machine):
                 self.raise_fault(f["kind"], f.get("addr"), pc, f.get("access", ""))
                 continue
             if r in ("idle", "spin"):
+                if until is not None and until():
+                    return "until"  # before time jumps to the next event
                 self.process_due()
                 if self.reset_req or self.best_pending() is not None:
                     continue  # something became pending in the last block: taken (WFE wakes up)

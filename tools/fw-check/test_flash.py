@@ -224,8 +224,9 @@ def no_c():
         fastblock.library = real
 
 
-@unittest.skipUnless(HAVE_TOOLS, "needs llvm-mc, rust-lld and llvm-objdump")
-class SyntheticFlashTests(unittest.TestCase):
+class FlashTestBase(unittest.TestCase):
+    """Builds and runs the tiny firmwares (no tests of its own)."""
+
     def build(self, src: str, origin: int = boot.FLASH_BASE) -> str:
         d = tempfile.mkdtemp(prefix="flash-test-")
         self.addCleanup(shutil.rmtree, d, True)
@@ -246,6 +247,10 @@ class SyntheticFlashTests(unittest.TestCase):
     @staticmethod
     def words(m, n, at=RES):
         return struct.unpack(f"<{n}I", bytes(m.uc.mem_read(at, 4 * n)))
+
+
+@unittest.skipUnless(HAVE_TOOLS, "needs llvm-mc, rust-lld and llvm-objdump")
+class SyntheticFlashTests(FlashTestBase):
 
     # the register sequence of embassy-stm32 0.6's F4 driver, and every mistake the model must catch
     SEQUENCE = f"""  ldr r7, ={RES}
@@ -449,7 +454,7 @@ class SyntheticFlashTests(unittest.TestCase):
 
 
 @unittest.skipUnless(HAVE_TOOLS, "needs llvm-mc, rust-lld and llvm-objdump")
-class LoaderTests(SyntheticFlashTests):
+class LoaderTests(FlashTestBase):
     """A "bootloader" at 0x0800_0000 that swaps (copies) an image from DFU into ACTIVE when the boot state sector
     says so, then sets VTOR and MSP and branches to the application at ACTIVE + 0x200; two "applications"."""
 
