@@ -5,6 +5,7 @@ Usage:
     python3 tools/fw-check/boot.py target/thumbv7em-none-eabihf/fw/firmware \
         [--json out.json] [--max-stack-percent 80] [--require-iwdg-before-clock] [-v]
         [--frames FILE|synth[:N] [--fused N] [--frame-rate 604.8] [--max-frames 400]]
+        [--flash-timing typ|max] [--flash-bsy-polls N]
 
 Exit status 0 only if the boot reached idle and every assertion passed; 1 if an assertion failed or the boot
 faulted/hung; 2 on a usage or tooling error (missing ELF, missing llvm-objdump, ...).
@@ -20,8 +21,8 @@ status, USART TXE/TC, ADC STRT/EOC, timers counting, ...).
 
 What is modelled
 ----------------
-* Memory: flash 1 MiB at 0x0800_0000 (erased = 0xFF outside the image, aliased at 0x0000_0000, read/execute only),
-  SRAM 128 KiB at 0x2000_0000, CCM 64 KiB at 0x1000_0000 (no execute), system memory 0x1FFF_0000..0x1FFF_7A2F
+* Memory: flash 1 MiB at 0x0800_0000 (erased = 0xFF outside the image, aliased at 0x0000_0000: one buffer seen at
+  both addresses; changed only by programming and erasing through the flash interface, see below), SRAM 128 KiB at 0x2000_0000, CCM 64 KiB at 0x1000_0000 (no execute), system memory 0x1FFF_0000..0x1FFF_7A2F
   (read only; unique ID, flash size and the factory calibration words VREFINT_CAL / TS_CAL1 / TS_CAL2 carry plausible
   values). Nothing else: 0x1FFF_7A30..0x1FFF_FFFF (just below SRAM, where a flip-link stack overflow goes) and
   0x2002_0000.. are unmapped, so an access there is a fault, as the BusFault it is on the chip. RAM that the reset
@@ -29,12 +30,12 @@ What is modelled
   the stack region is painted with a known pattern to measure its high-water mark.
 * Peripherals 0x4000_0000..0x4007_FFFF and 0x5000_0000..0x5006_0FFF: register files, with behaviour for RCC (ready
   bits follow their enables, SWS follows SW when the source is ready, reset flags POR|PIN|BOR at power-on, RMVF),
-  PWR (VOSRDY), FLASH interface (ACR, unlock keys, never busy), USART1/2 (TXE|TC, BRR, bytes written to DR are
+  PWR (VOSRDY), FLASH interface (programs and erases the flash: "Flash programming and erase"), USART1/2 (TXE|TC, BRR, bytes written to DR are
   collected), DMA1/2 (register file; EN reads back; no data moves), general-purpose timers (CNT counts at
   f_timer/(PSC+1) of the modelled virtual time, see below), IWDG (key writes logged, PR/RLR locked unless 0x5555,
   SR = 0), ADC1 (SWSTART sets STRT|EOC, DR gives a plausible code for the temperature / VREFINT channels), GPIO (BSRR,
   IDR = ODR for outputs). Any other peripheral block is a plain register file and its first access is logged.
-* PPB 0xE000_0000..0xE00F_FFFF: SCB (CPUID 0x410F_C241, VTOR, AIRCR - a SYSRESETREQ ends the run as a failure -
+* PPB 0xE000_0000..0xE00F_FFFF: SCB (CPUID 0x410F_C241, VTOR (exceptions are vectored through it), AIRCR - a SYSRESETREQ ends the run as a failure -
   CCR, SHPR, CFSR, CPACR, ...), NVIC (ISER/ICER/ISPR/ICPR/IPR/STIR as bitmaps), SysTick, DWT (CYCCNT = modelled
   cycles when enabled), DCB DEMCR, FPU FPCCR, DBGMCU (0xE004_2000).
 * Time: "virtual time" = instructions executed / HCLK of the moment (from the modelled RCC registers), i.e. one
@@ -73,6 +74,62 @@ the next idle after the line time at the configured baud rate. USART2's transfer
 generates N valid frames (mid-scale ADC codes, CRC-32C). Not modelled there: preemption of running code (interrupts
 wait for idle), priorities, UART errors, the FPGA's answer to control messages.
 
+Flash programming and erase (class FlashIf; RM0090 §3.5-3.9, DS8626)
+---------------------------------------------------------------------
+* Sectors: 0-3 16 KiB, 4 64 KiB, 5-11 128 KiB (RM0090 table 5, single bank). Erased = 0xFF.
+* FLASH_KEYR: KEY1 0x4567_0123 then KEY2 0xCDEF_89AB clears CR.LOCK; any other value while locked (or the right
+  ones in the wrong order) locks CR until the next reset and is a bus error (a fault here; a BusFault in emu.Sim).
+  A key written while unlocked is reported and ignored.
+* FLASH_CR: LOCK is write-1-only; while locked every write is ignored (and reported if it would change it). STRT
+  starts a sector erase (SER, SNB 0..11) or a mass erase (MER); SNB > 11, or STRT with neither, is reported and
+  refused (SNB > 11 sets WRPERR). PSIZE sets the parallelism: a program must be of that size (else PGPERR) and the
+  erase time depends on it. EOPIE/ERRIE: EOP is set at the end of an operation only with EOPIE, OPERR only with
+  ERRIE and a parallelism, alignment or write-protection error (RM0090 §3.9.5); the FLASH interrupt (IRQ 4) is a
+  level source of EOP&EOPIE | OPERR&ERRIE.
+* FLASH_SR: EOP, OPERR, WRPERR, PGAERR, PGPERR, PGSERR are write-1-to-clear. BSY: the CPU stalls for the whole
+  operation (one bank: every instruction fetch from flash waits), so virtual time moves on by the operation's
+  duration at once; BSY then reads as set for N reads of SR (--flash-bsy-polls; emu.Sim flash_bsy_polls; default 1) so that
+  the driver's wait loop runs. A write of CR ends them (a CR write while BSY stalls the bus until the end).
+* A store to flash memory (0x0800_0000.. or the alias 0..) is a program attempt: with PG set, unlocked, of PSIZE's
+  size, inside one 128-bit row (else PGAERR) and not write-protected, the flash holds old AND value ("successive
+  write operations are possible without the need of an erase operation when changing bits from 1 to 0", RM0090
+  §3.6.2: no error flag on the F4); a program that leaves other bits than stored (over a non-erased location) is
+  counted and reported. Without PG, or while CR is locked, the store does not program, PGSERR is set and the write
+  is reported (RM0090 does not say what a store with PG set after LOCK does: refused here, conservatively).
+* Durations (DS8626 table "Flash memory programming", VDD 2.7-3.6 V; --flash-timing max (default) or typ):
+  sector erase 16 KiB x8/x16/x32 0.4/0.3/0.25 s typ, 0.8/0.6/0.5 s max; 64 KiB 1.2/0.7/0.55 s typ, 2.4/1.4/1.1 s
+  max; 128 KiB 2/1.3/1 s typ, 4/2.6/2 s max; mass erase 16/11/8 s typ, 32/22/16 s max; word (any size) program
+  t_prog 16 µs typ, 100 µs max. PSIZE x64 needs VPP (not on this board): timed as x32, with a warning. Timers,
+  SysTick and the IWDG see the stall (they run on); in emu.Sim an IWDG expiry during an erase resets the chip at
+  the expiry and leaves the sector pseudo-random (an interrupted erase's contents are undefined).
+* Per run (`Machine.flash_summary()`): each erase (sectors, start, duration, PSIZE, cut short?), unlocks, programs,
+  bytes, program time, over-programs and every violation (`flash_violation`: also a warning; boot.py's assertion
+  "flash interface used as RM0090 says" fails on any).
+* Implementation: both flash mappings are writable RAM to unicorn with a store hook that runs before the store and
+  a fix-up afterwards when the flash must not hold the stored value (a refused or over-program); the fix-up is
+  applied at the next block, flash-interface access or flash store, so a read of that location in the same
+  translation block right after such a store would still see the stored value (never in a driver: it waits on SR
+  in between). (unicorn 2.1.4's UC_HOOK_MEM_WRITE_PROT cannot be used: a "handled" write still stores, through a
+  stale TLB entry, and crashed now and then.) emu.Sim does the common accesses in C (fastblock): ≈ 360 k word
+  programs/s of embassy's unlock-program-wait-lock sequence on the build machine, ≈ 5.6 k/s in Python.
+* Not modelled: the ART accelerator's caches (no stale line after a program or erase; DCRST/ICRST are accepted, and
+  reported when written with the cache enabled, which RM0090 §3.9.1 forbids), option bytes (OPTCR reads its reset
+  value 0x0FFF_AAED: no write protection, no readout protection; OPTKEYR/OPTCR writes are ignored with a warning),
+  error flags blocking later operations, a program cut short by a reset, read-while-write timing of code running
+  from RAM (stalled like code in flash), DWT.CYCCNT during the stall (it does not count it), the erase of the code
+  being run (it is erased; execution then falls on 0xFFFF).
+
+Several ELFs and images in one flash (class ImageSet)
+-----------------------------------------------------
+A run can load the bootloader ELF (at 0x0800_0000), the application ELF (at ACTIVE + 0x200) and raw images at given
+addresses (a signed image in DFU, the boot state sector's words): `ImageSet(loaded, candidates, blobs)` (update.py
+uses it). Execution starts from the vector table at 0 (the alias of 0x0800_0000). The ELFs whose flash contents are
+all in place are identified at power-on, at every reset and at every VTOR write (the bootloader's jump); the
+instruction table, symbols, traps, defmt decoders (each ELF its own), task polls and WFE/SEV/WFI follow (a
+candidate ELF - the application in a DFU image - becomes active once the bootloader has copied it into place).
+An application ELF alone whose vector table is not at 0x0800_0000 (linked behind a bootloader) starts from its own
+vector table with VTOR set to it ("direct boot", an event), as if a bootloader had jumped to it.
+
 What is NOT modelled
 --------------------
 * During the boot check no exception or interrupt is delivered (no SysTick, TIM5 alarms, DMA/USART interrupts,
@@ -83,8 +140,7 @@ What is NOT modelled
 * The FPU: unicorn executes VFP instructions whether or not CPACR enables CP10/CP11 (checked on unicorn 2.1.4), so
   a missing FPU enable would not fault here; the CPACR value written is checked as an assertion instead.
 * DMA moves no data; UART receivers never receive; timers do not raise update/compare flags; the watchdog never
-  bites (its configured timeout is reported); flash programming/erase is not modelled (a write to flash memory is
-  reported as a fault); the clock tree is only as good as the rules above (no PLL lock time, no HSE failure: the
+  bites (its configured timeout is reported); the clock tree is only as good as the rules above (no PLL lock time, no HSE failure: the
   crystal always starts, so the HSI fallback path of board.rs is not exercised).
 * Instruction counts come from unicorn's translation blocks and llvm-objdump's instruction list: exact for what ran,
   but they are instructions, not M4 cycles.
@@ -2638,6 +2694,10 @@ def main(argv=None) -> int:
     ap.add_argument("--frame-rate", type=float, default=604.8, help="frames per second of virtual time (604.8)")
     ap.add_argument("--max-frames", type=int, default=400, help="stop feeding after this many frames (400)")
     ap.add_argument("--fused", type=int, default=1, metavar="N", help="with --frames: run until N Fused reports (1)")
+    ap.add_argument("--flash-timing", choices=["typ", "max"], default="max",
+                    help="flash erase/program durations from DS8626, typical or maximum (default max)")
+    ap.add_argument("--flash-bsy-polls", type=int, default=1,
+                    help="reads of FLASH_SR that see BSY after each flash operation (default 1)")
     ap.add_argument("-v", "--verbose", action="store_true", help="print events and first peripheral accesses live")
     ap.add_argument("--trace-mmio", action="store_true", help="print every peripheral access (very verbose)")
     args = ap.parse_args(argv)

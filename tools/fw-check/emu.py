@@ -42,6 +42,12 @@ USART receive errors
     `line_errors(usart, t0, t1, kinds)`: every byte received in [t0, t1) carries FE (or NE/PE); the byte is still
     transferred by the DMA when DMAR=1, otherwise it sets RXNE (ORE when RXNE was set). FE/NE/ORE raise the USART
     interrupt when CR3.EIE is set; the SR-then-DR read clears them (as embassy-stm32 0.6's ring-buffered RX sees it).
+Flash (boot.py "Flash programming and erase")
+    `flash_timing` ("max" | "typ") and `flash_bsy_polls`. The stall of an erase or program moves virtual time on
+    for everything (timers, SysTick, the IWDG, timed stimuli, which are taken after it); an IWDG expiry during an
+    erase resets the chip at the expiry, the erase cut short. Flash survives resets, RAM too. The code in flash is
+    identified again at every reset and VTOR write (boot.ImageSet): the bootloader swaps an image in and jumps to it,
+    the instruction tables, hot blocks and traps follow. fastblock's C code does the common flash accesses.
 
 Time is virtual (instructions at the HCLK of the moment, 1 IPC; boot.py). At idle (WFE with no event) time jumps
 to the next event: an FPGA frame, bus bytes, the end of a DMA transmission, a timer compare/overflow, SysTick, the
