@@ -478,9 +478,10 @@ class LoaderTests(FlashTestBase):
   str r0, [r6], #4
 {wait("3")}  subs r3, #1
   bne 2b
-  ldr r0, =0x80000000
+{erase(4, 2, "4")}  ldr r0, =0x80000000
   str r0, [r4, #0x10]
-  movs r0, #1
+  ldr r0, [r7, #0x10]
+  adds r0, #1
   str r0, [r7, #0x10]
 8: ldr r0, =0xE000ED08
   ldr r1, ={self.ACTIVE + 0x200}
@@ -492,7 +493,23 @@ class LoaderTests(FlashTestBase):
 """
         return self.build(firmware(body))
 
-    def app(self, marker: int, pad: int) -> str:
+    def app(self, marker: int, pad: int, request: bool = False) -> str:
+        """An application: its marker and VTOR to RES + 0x20; with `request`, it then asks for a swap (programs the
+        swap magic into the state sector) and resets (SYSRESETREQ), as an update's Commit does."""
+        req = f"""  ldr r4, ={FLASH_IF}
+{UNLOCK}  ldr r0, =(1 | (2 << 8))
+  str r0, [r4, #0x10]
+  ldr r5, ={self.STATE}
+  ldr r0, =0xF0F0F0F0
+  str r0, [r5]
+{wait("5")}  ldr r0, =0x80000000
+  str r0, [r4, #0x10]
+  dsb
+  ldr r0, =0xE000ED0C
+  ldr r1, =0x05FA0004
+  str r1, [r0]
+98: b 98b
+"""
         body = f"""  ldr r7, ={RES}
   movs r0, #{marker}
   str r0, [r7, #0x20]
@@ -500,7 +517,7 @@ class LoaderTests(FlashTestBase):
   ldr r0, [r0]
   str r0, [r7, #0x24]
 {"  nop" + chr(10) if pad else ""}{"  nop" + chr(10) if pad else ""}  bl {POLL.format(n=marker)}
-  sev
+{req if request else ""}  sev
 {IDLE}"""
         return self.build(firmware(body, poll=marker), origin=self.ACTIVE + 0x200)
 
@@ -516,15 +533,17 @@ class LoaderTests(FlashTestBase):
         bm.run(5.0, 1_000_000)
         self.assertEqual(bm.stop_kind, "idle", bm.stop_msg)
 
-    def image_set(self, swap: bool):
-        bl, app1, app2 = (boot.Image(p, need_stack=False) for p in (self.bootloader(), self.app(1, 0),
+    def image_set(self, swap: bool, request: bool = False):
+        bl, app1, app2 = (boot.Image(p, need_stack=False) for p in (self.bootloader(), self.app(1, 0, request),
                                                                      self.app(2, 1)))
         blobs = []
         if swap:  # app2's flash contents in DFU as they will sit in ACTIVE (behind a 512-byte "header")
             payload = bytearray(b"\xff" * (self.COPY_WORDS * 4))
             for a, d in app2.flash_segments():
                 payload[a - self.ACTIVE:a - self.ACTIVE + len(d)] = d
-            blobs = [(self.DFU, bytes(payload), "app2 image"), (self.STATE, b"\xf0" * 4, "swap magic")]
+            blobs = [(self.DFU, bytes(payload), "app2 image")]
+            if not request:  # else app1 asks for the swap itself
+                blobs.append((self.STATE, b"\xf0" * 4, "swap magic"))
         return boot.ImageSet([bl, app1], candidates=[app2], blobs=blobs), bl, app1, app2
 
     def test_bootloader_jumps_to_the_application(self):
@@ -546,8 +565,9 @@ class LoaderTests(FlashTestBase):
             with self.subTest(engine=engine), (no_c() if engine == "sim-python" else contextlib.nullcontext()):
                 imgs, bl, app1, app2 = self.image_set(swap=True)
                 m = self.sim(imgs)
+                m.uc.mem_write(RES, bytes(0x40))
                 old_dfu = bytes(m.flash_mem[self.DFU - boot.FLASH_BASE:][:self.COPY_WORDS * 4])
-                m.run_until(3.0)
+                m.run_until(5.0)
                 self.assertEqual(self.words(m, 1, RES + 0x10), (1,))  # the bootloader copied
                 self.assertEqual(self.words(m, 2, RES + 0x20), (2, self.ACTIVE + 0x200))  # app2 runs
                 off = self.ACTIVE - boot.FLASH_BASE
@@ -555,10 +575,26 @@ class LoaderTests(FlashTestBase):
                 self.assertEqual([im.sha256 for im in imgs.active], [bl.sha256, app2.sha256])
                 self.assertTrue(any(e["kind"] == "images" for e in m.events))
                 s = m.flash_summary()
-                self.assertEqual((s["erase_count"], s["programs"], s["violation_count"]), (1, self.COPY_WORDS, 0))
+                self.assertEqual((s["erase_count"], s["programs"], s["violation_count"]), (2, self.COPY_WORDS, 0))
                 poll2 = next(iter(app2.task_polls))
                 self.assertEqual(m.polled[poll2], 1)  # app2's hot blocks were installed when it came in
                 self.assertEqual(m.idle_pc in app2.wfe, True)
+
+    def test_code_that_ran_is_replaced_and_the_new_code_runs(self):
+        # app1 runs, asks for a swap and resets; the bootloader erases and reprograms the flash app1 ran from (its
+        # translations must go) and jumps: app2 runs there
+        for engine in ("sim-c", "sim-python"):
+            with self.subTest(engine=engine), (no_c() if engine == "sim-python" else contextlib.nullcontext()):
+                imgs, bl, app1, app2 = self.image_set(swap=True, request=True)
+                m = self.sim(imgs)
+                m.uc.mem_write(RES, bytes(0x40))
+                m.run_until(5.0)
+                self.assertEqual([b["cause"] for b in m.boots], ["power-on", "software"])
+                self.assertEqual(self.words(m, 1, RES + 0x10), (1,))  # one copy
+                self.assertEqual(self.words(m, 1, RES + 0x20), (2,))  # app2 runs where app1 ran
+                self.assertEqual([im.sha256 for im in imgs.active], [bl.sha256, app2.sha256])
+                self.assertEqual(m.idle_pc in app2.wfe, True)
+                self.assertEqual(m.flash_summary()["violation_count"], 0)
 
     def test_image_set_rejects_a_blob_outside_flash(self):
         bl = boot.Image(self.bootloader(), need_stack=False)
