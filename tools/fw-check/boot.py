@@ -2000,6 +2000,7 @@ class Machine:
 
     def _images_changed(self):
         self.binfo.clear()
+        self.polled.clear()
         self._symbol_hooks()
         self._code_hooks()
 

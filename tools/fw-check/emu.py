@@ -546,6 +546,7 @@ class Sim(boot.Machine):
     def _images_changed(self):
         """Other code in flash (the bootloader swapped an image in and jumps to it): new tables and hooks."""
         self._build_tables(self.img)
+        self.polled.clear()  # task polls count from when their code is in flash
         super()._images_changed()
         self._mark_hot()
 
@@ -1137,6 +1138,8 @@ class Sim(boot.Machine):
 
     def _on_block(self, uc, addr, size, _):
         """Per-block hook in Python (when no C compiler: fastblock's fw_block does the same in C)."""
+        if self._flash_fix is not None:
+            self.flash_sync()
         st = self._st
         key = (addr << 12) | size
         n = self.ninsn.get(key)
