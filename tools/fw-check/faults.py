@@ -381,7 +381,7 @@ def s_idle_config(ctx) -> Check:
     m, img = r.m, ctx["flight_img"]
     cr = m.rcc.regs.get(emu.Rcc.CR, 0)
     c.that("RCC_CR.CSSON", cr & (1 << 19), f"RCC_CR=0x{cr:08x}")
-    vec = boot.struct.unpack("<98I", m.flash_image[:98 * 4])
+    vec = m.vectors(98)
     default = img.addr_of.get("DefaultHandler")
     enabled = m.ppb.irq_enabled()
     unbound = [boot.IRQ_NAMES.get(n, str(n)) for n in enabled
