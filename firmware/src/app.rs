@@ -43,9 +43,7 @@ use shared::telemetry::{
     CalSource, ClockSource, HealthReport, HousekeepingReport, ResetHistory, RxErrorCounts,
     StoreOutcome, TaskId, Telemetry,
 };
-use shared::update::{
-    BootState, DfuState, UpdateCounters, UpdateError, UpdateOutcome, UpdateStatus,
-};
+use shared::update::{UpdateError, UpdateStatus};
 use shared::wire::FpgaControl;
 use shared::wire::frame::GROUPS;
 
@@ -475,23 +473,7 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
             persist: Signal::new(),
             reload: Signal::new(),
             update_in: Channel::new(),
-            update_status: BlockingMutex::new(Cell::new(UpdateStatus {
-                running_version: 0,
-                dfu_version: 0,
-                dfu: DfuState::Idle,
-                received: 0,
-                payload_len: 0,
-                boot: BootState::Unknown,
-                last: UpdateOutcome::None,
-                counters: UpdateCounters {
-                    requests: 0,
-                    refused: 0,
-                    crc_errors: 0,
-                    out_of_order: 0,
-                    duplicates: 0,
-                    erases: 0,
-                },
-            })),
+            update_status: BlockingMutex::new(Cell::new(UpdateStatus::UNKNOWN)),
             heartbeats: [const { AtomicU32::new(0) }; TASKS],
             monitored: AtomicU32::new((1 << TASKS) - 1),
             hang: AtomicU32::new(0),

@@ -256,6 +256,18 @@ pub struct UpdateCounters {
     pub erases: u32,
 }
 
+impl UpdateCounters {
+    /// All zero (`Default`, usable in `const`).
+    pub const ZERO: Self = Self {
+        requests: 0,
+        refused: 0,
+        crc_errors: 0,
+        out_of_order: 0,
+        duplicates: 0,
+        erases: 0,
+    };
+}
+
 /// The service's state, in [`UpdateReply::Status`] and in housekeeping.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -276,6 +288,20 @@ pub struct UpdateStatus {
     pub last: UpdateOutcome,
     /// Counters.
     pub counters: UpdateCounters,
+}
+
+impl UpdateStatus {
+    /// Nothing known yet (usable in `const`): what housekeeping reports before the storage task has read the slots.
+    pub const UNKNOWN: Self = Self {
+        running_version: 0,
+        dfu_version: 0,
+        dfu: DfuState::Idle,
+        received: 0,
+        payload_len: 0,
+        boot: BootState::Unknown,
+        last: UpdateOutcome::None,
+        counters: UpdateCounters::ZERO,
+    };
 }
 
 /// What the receiver is told about the satellite for each request.
@@ -318,14 +344,7 @@ impl Receiver {
     pub const fn new(last: UpdateOutcome) -> Self {
         Self {
             session: None,
-            counters: UpdateCounters {
-                requests: 0,
-                refused: 0,
-                crc_errors: 0,
-                out_of_order: 0,
-                duplicates: 0,
-                erases: 0,
-            },
+            counters: UpdateCounters::ZERO,
             last,
             dfu_version: 0,
         }
