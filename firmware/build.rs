@@ -28,13 +28,18 @@ fn firmware_version() {
     }
 }
 
+#[path = "../keys/update_pubkey.rs"]
+mod update_pubkey;
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("cargo:rerun-if-changed=build.rs");
     firmware_version();
+    // The update public key (`keys/README.md`), for both builds: the SITL checks uploads as the MCU does.
+    let out = PathBuf::from(env::var_os("OUT_DIR").ok_or("OUT_DIR not set")?);
+    update_pubkey::emit(std::path::Path::new(".."), &out)?;
     if env::var("CARGO_CFG_TARGET_OS").as_deref() != Ok("none") {
         return Ok(());
     }
-    let out = PathBuf::from(env::var_os("OUT_DIR").ok_or("OUT_DIR not set")?);
     fs::copy("memory.x", out.join("memory.x")).map_err(|e| format!("copy memory.x: {e}"))?;
     // For the `firmware` binary only: a `rustc-link-search` would reach every crate that links this library too
     // (the bootloader, which has its own `memory.x`). Neither script is at the workspace's root, where the linker,

@@ -23,7 +23,7 @@ use core::cell::Cell;
 use core::num::NonZeroU64;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
-use embassy_futures::select::{Either, select};
+use embassy_futures::select::{Either, Either3, select, select3};
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
@@ -38,15 +38,20 @@ use shared::bus::{BusConfig, BusCounters, BusEvent, BusNode, MAX_PAYLOAD, MAX_WI
 use shared::calib::encoded_len_max;
 use shared::pipeline::{Output, Pipeline, PipelineConfig, PipelineMemory};
 use shared::storage::{CalStore, StoreError};
+use shared::telemetry::Mode;
 use shared::telemetry::{
     CalSource, ClockSource, HealthReport, HousekeepingReport, ResetHistory, RxErrorCounts,
     StoreOutcome, TaskId, Telemetry,
+};
+use shared::update::{
+    BootState, DfuState, UpdateCounters, UpdateError, UpdateOutcome, UpdateStatus,
 };
 use shared::wire::FpgaControl;
 use shared::wire::frame::GROUPS;
 
 use crate::layout::FPGA_RX_RING_LEN;
 use crate::log::Loggable;
+use crate::update::{CONFIRM_AFTER_MS, Updater};
 
 type Raw = CriticalSectionRawMutex;
 
@@ -78,11 +83,12 @@ pub const ERROR_LOG_EVERY: Duration = Duration::from_secs(1);
 pub const TASKS: usize = 8;
 /// Each task's deadline, ms: the longest it may go without a heartbeat before the watchdog stops feeding the
 /// IWDG (in [`TaskId`] order). Each is its longest wait (an [`IDLE_TIMEOUT`], an [`EVENT_WAIT`], a period) plus
-/// the longest stall of every task, a calibration store (`layout::STORE_STALL_MAX_US`, 0.6 s), plus margin:
-/// link, FPGA control, bus RX, bus TX 2 s; storage 3 s (its own store, then a wait); watchdog 1 s (250 ms period);
-/// housekeeping 3 s (1 s period, the ADC); PPS 2 s. The IWDG then resets within its timeout (`board.rs`: 8 s
-/// nominal, 5.4 s at the fastest LSI) after the first miss: a hung task resets the MCU within 11 s.
-pub const DEADLINES_MS: [u32; TASKS] = [2_000, 2_000, 2_000, 2_000, 3_000, 1_000, 3_000, 2_000];
+/// the longest stall of every task, a DFU sector erase of the update service (≤ 2 s at x32, `docs/update.md`; a
+/// calibration store stalls ≤ 0.6 s), plus margin: link, FPGA control, bus RX, bus TX 3 s; storage 4 s (its own
+/// erase, then a wait); watchdog 3 s (250 ms period); housekeeping 4 s (1 s period, the ADC); PPS 3 s. The IWDG
+/// then resets within its timeout (`board.rs`: 8 s nominal, 5.4 s at the fastest LSI) after the first miss: a hung
+/// task resets the MCU within 12 s.
+pub const DEADLINES_MS: [u32; TASKS] = [3_000, 3_000, 3_000, 3_000, 4_000, 3_000, 4_000, 3_000];
 /// Housekeeping periods between log lines of link statistics.
 pub const LOG_EVERY: u32 = 10;
 /// Housekeeping period: a [`HousekeepingReport`] each time, a Health report too while the FPGA link is silent, and
@@ -94,13 +100,22 @@ pub const HOUSEKEEPING_PERIOD: Duration = Duration::from_secs(1);
 pub enum BusOut {
     /// A telemetry message.
     Telemetry(Telemetry),
-    /// A ping to answer.
-    PingReply {
+    /// A reply to a request: a ping's echo, an update service reply.
+    Reply {
         /// The request's header.
         header: CspHeader,
-        /// Its payload, echoed.
+        /// The reply's payload (a ping's: the request's, echoed).
         payload: heapless::Vec<u8, MAX_PAYLOAD>,
     },
+}
+
+/// A request to the update service, from the bus receiver to the storage task (the one that writes flash).
+#[derive(Clone, Debug)]
+pub struct UpdateIn {
+    /// The request's header (the reply goes back to its source).
+    pub header: CspHeader,
+    /// Its payload (`shared::update::UpdateEnvelope`).
+    pub payload: heapless::Vec<u8, MAX_PAYLOAD>,
 }
 
 /// Receive-error classes; the board maps its UART's error type onto these (`embedded_io::ErrorKind` says only
@@ -412,6 +427,10 @@ pub struct App<B> {
     persist: Signal<Raw, u16>,
     /// The calibration in RAM failed its CRC check: reload it from flash.
     reload: Signal<Raw, ()>,
+    /// Requests to the update service (`storage_loop` handles them).
+    update_in: Channel<Raw, UpdateIn, 1>,
+    /// The update service's state, as the storage task last read it (for housekeeping).
+    update_status: BlockingMutex<Raw, Cell<UpdateStatus>>,
     /// Each task's last heartbeat, ms of uptime (wrapping).
     heartbeats: [AtomicU32; TASKS],
     /// Tasks the watchdog checks (bit i: [`TASKS`] order); all unless the board runs fewer (safe mode).
@@ -455,6 +474,24 @@ impl<B: core::borrow::BorrowMut<PipelineMemory>> App<B> {
             fpga: Channel::new(),
             persist: Signal::new(),
             reload: Signal::new(),
+            update_in: Channel::new(),
+            update_status: BlockingMutex::new(Cell::new(UpdateStatus {
+                running_version: 0,
+                dfu_version: 0,
+                dfu: DfuState::Idle,
+                received: 0,
+                payload_len: 0,
+                boot: BootState::Unknown,
+                last: UpdateOutcome::None,
+                counters: UpdateCounters {
+                    requests: 0,
+                    refused: 0,
+                    crc_errors: 0,
+                    out_of_order: 0,
+                    duplicates: 0,
+                    erases: 0,
+                },
+            })),
             heartbeats: [const { AtomicU32::new(0) }; TASKS],
             monitored: AtomicU32::new((1 << TASKS) - 1),
             hang: AtomicU32::new(0),
@@ -808,9 +845,12 @@ where
                 }
                 BusEvent::Ping { header, payload } => {
                     let payload = heapless::Vec::from_slice(payload).unwrap_or_default();
-                    app.replies
-                        .send(BusOut::PingReply { header, payload })
-                        .await;
+                    app.replies.send(BusOut::Reply { header, payload }).await;
+                }
+                BusEvent::Update { header, payload } => {
+                    // Waits while the storage task erases (the bytes behind wait in the DMA ring).
+                    let payload = heapless::Vec::from_slice(payload).unwrap_or_default();
+                    app.update_in.send(UpdateIn { header, payload }).await;
                 }
             }
         }
@@ -850,7 +890,7 @@ where
         };
         let frame = match &item {
             BusOut::Telemetry(t) => node.encode_message(t, &mut wire).map_err(|_| ()),
-            BusOut::PingReply { header, payload } => node
+            BusOut::Reply { header, payload } => node
                 .encode_reply(header, payload, &mut wire)
                 .map_err(|_| ()),
         };
@@ -977,27 +1017,120 @@ pub fn load_calibration<F: NorFlash, B: core::borrow::BorrowMut<PipelineMemory>>
     });
 }
 
+/// VDD is known to be below [`STORE_VDD_MIN_MV`] (no reading: not known to be low).
+fn vdd_low<B>(app: &App<B>) -> bool {
+    app.platform
+        .mcu_sensors
+        .and_then(|read| read())
+        .is_some_and(|(_, mv)| mv < STORE_VDD_MIN_MV)
+}
+
+/// One request to the update service: handled on the DFU slot (flash writes only in `Mode::Idle` and at a VDD fit
+/// for programming), answered on the reply queue, the service's state published for housekeeping.
+async fn serve_update<B, D, S>(app: &App<B>, update: &mut Updater<D, S>, request: UpdateIn)
+where
+    B: core::borrow::BorrowMut<PipelineMemory>,
+    D: NorFlash,
+    S: NorFlash,
+{
+    let idle = app.pipeline.lock().await.mode() == Mode::Idle;
+    let writable = if !idle {
+        Err(UpdateError::NotIdle)
+    } else if vdd_low(app) {
+        app.count(Counter::LowVdd);
+        Err(UpdateError::LowVoltage)
+    } else {
+        Ok(())
+    };
+    let mut out = [0u8; MAX_PAYLOAD];
+    let n = update.handle(&request.payload, writable, &mut out);
+    if writable.is_ok() {
+        // Any flash operation stalled every task (a DFU sector erase ≤ 2 s): the link task drops its ring. In
+        // `Idle` the FPGA is not streaming, so nothing is lost.
+        app.link_stale.store(true, Ordering::Release);
+    }
+    app.update_status.lock(|c| c.set(update.status()));
+    match n.and_then(|n| out.get(..n)) {
+        Some(reply) => {
+            let payload = heapless::Vec::from_slice(reply).unwrap_or_default();
+            app.replies
+                .send(BusOut::Reply {
+                    header: request.header,
+                    payload,
+                })
+                .await;
+        }
+        None => error!("update: a reply did not fit a packet"),
+    }
+}
+
+/// A trial image (the bootloader swapped it in) confirms itself once it has run [`CONFIRM_AFTER_MS`] without a
+/// missed deadline; if one was missed it stays a trial, and the next reset reverts it.
+async fn confirm_trial<B, D, S>(app: &App<B>, update: &mut Updater<D, S>)
+where
+    B: core::borrow::BorrowMut<PipelineMemory>,
+    D: NorFlash,
+    S: NorFlash,
+{
+    if !update.trial
+        || Instant::now().as_millis() < CONFIRM_AFTER_MS
+        || app.counters.get(Counter::WatchdogMiss) != 0
+    {
+        return;
+    }
+    let confirmed = update.confirm();
+    app.link_stale.store(true, Ordering::Release);
+    if confirmed {
+        info!(
+            "update: version {:?} confirmed itself",
+            update.running_version
+        );
+    } else {
+        error!("update: the boot state could not be written; the next reset reverts");
+    }
+    app.update_status.lock(|c| c.set(update.status()));
+}
+
 /// Persists the calibration in force whenever an upload is committed, then sends the commit's ack: `Ok` only once
 /// the record is written and read back (`CalStore::store`), `Storage` otherwise. The erase stalls the CPU
 /// (single-bank flash, `docs/storage.md`): FPGA bytes arriving meanwhile overrun the ring and are counted, bus bytes
 /// wait in the bus's DMA ring.
-pub async fn storage_loop<B, F>(app: &App<B>, store: &mut CalStore<F>) -> !
+pub async fn storage_loop<B, F, D, S>(
+    app: &App<B>,
+    store: &mut CalStore<F>,
+    update: &mut Updater<D, S>,
+) -> !
 where
     B: core::borrow::BorrowMut<PipelineMemory>,
     F: NorFlash,
     F::Error: Loggable,
+    D: NorFlash,
+    S: NorFlash,
 {
     let mut scratch = [0u8; CAL_SCRATCH];
+    app.update_status.lock(|c| c.set(update.status()));
     loop {
         app.beat(TaskId::Storage).await;
-        let Ok(event) =
-            with_timeout(EVENT_WAIT, select(app.persist.wait(), app.reload.wait())).await
+        confirm_trial(app, update).await;
+        let Ok(event) = with_timeout(
+            EVENT_WAIT,
+            select3(
+                app.persist.wait(),
+                app.reload.wait(),
+                app.update_in.receive(),
+            ),
+        )
+        .await
         else {
             continue;
         };
         let tag = match event {
-            Either::First(tag) => tag,
-            Either::Second(()) => {
+            Either3::First(tag) => tag,
+            Either3::Third(request) => {
+                serve_update(app, update, request).await;
+                continue;
+            }
+            Either3::Second(()) => {
                 // The table in RAM failed its CRC: the newest stored one (or the factory default) replaces it.
                 load_calibration(store, &mut *app.pipeline.lock().await);
                 app.count(Counter::CalRamRepairs);
@@ -1222,6 +1355,9 @@ where
                 crash_loop_over = true;
             }
         }
+        app.route(Output::Telemetry(Telemetry::Update(
+            app.update_status.lock(Cell::get),
+        )));
         app.count(Counter::Housekeeping);
         if !p.calibration_intact() {
             error!("calibration: CRC check of the table in RAM failed; reloading from flash");

@@ -29,7 +29,7 @@
 
 use core::cell::RefCell;
 use embassy_embedded_hal::flash::partition::BlockingPartition;
-use embassy_stm32::flash::{Bank1Region1, Blocking, Flash};
+use embassy_stm32::flash::{Bank1Region1, Bank1Region2, Bank1Region3, Blocking, Flash};
 use embassy_stm32::gpio::{Level, OutputOpenDrain, Pull, Speed};
 use embassy_stm32::mode::Async;
 use embassy_stm32::rcc::{
@@ -207,6 +207,18 @@ pub type Region1 = Flash32<Bank1Region1<'static, Blocking>>;
 /// `embedded_storage::nor_flash::NorFlash` over sectors 2 and 3 only.
 pub type CalibFlash = BlockingPartition<'static, NoopRawMutex, Region1>;
 
+/// Sector 4 (embassy's `Bank1Region2`, 64 KiB): embassy-boot's state partition, whole.
+pub type StateFlash = Flash32<Bank1Region2<'static, Blocking>>;
+/// Sectors 5–11 (embassy's `Bank1Region3`, 128 KiB each): ACTIVE and DFU.
+pub type Region3 = Flash32<Bank1Region3<'static, Blocking>>;
+/// The DFU slot, sectors 7–9 of region 3.
+pub type DfuFlash = BlockingPartition<'static, NoopRawMutex, Region3>;
+/// The update service's flash.
+pub type UpdateFlash = firmware::update::Updater<DfuFlash, StateFlash>;
+/// Where region 3 starts (sector 5).
+const REGION3_BASE: u32 = 0x0802_0000;
+static FLASH_REGION3: StaticCell<BlockingMutex<NoopRawMutex, RefCell<Region3>>> = StaticCell::new();
+
 /// Flash region 1 (sectors 0–3), shared by its partitions (today only the calibration slots).
 static FLASH_REGION1: StaticCell<BlockingMutex<NoopRawMutex, RefCell<Region1>>> = StaticCell::new();
 /// Status LED (open drain, see the module docs): `embedded_hal::digital::OutputPin`.
@@ -332,6 +344,52 @@ impl core::borrow::BorrowMut<PipelineMemory> for MemoryCcm {
     }
 }
 
+/// The update service on sectors 4 (boot state) and 7–9 (DFU), with the running image's version from its header in
+/// ACTIVE (0 when it has none: flashed by a probe) and the report the bootloader left in RAM (cleared once read, so
+/// that a later boot without the bootloader does not read it again).
+fn update_service(
+    region2: Bank1Region2<'static, Blocking>,
+    region3: Bank1Region3<'static, Blocking>,
+) -> UpdateFlash {
+    use embedded_storage::nor_flash::ReadNorFlash;
+    use firmware::layout::{ACTIVE_BASE, ACTIVE_LEN, BOARD_ID, DFU_BASE, DFU_LEN};
+    let mut region3 = Flash32(region3);
+    let mut header = [0u8; shared::update::image::OPEN_LEN];
+    let running_version = region3
+        .read(ACTIVE_BASE - REGION3_BASE, &mut header)
+        .ok()
+        .and_then(|()| shared::update::Header::parse(&header).ok())
+        .map_or(0, |h| h.version);
+    let region3 = FLASH_REGION3.init(BlockingMutex::new(RefCell::new(region3)));
+    let dfu = BlockingPartition::new(region3, DFU_BASE - REGION3_BASE, DFU_LEN);
+    firmware::update::Updater::new(
+        dfu,
+        Flash32(region2),
+        firmware::update::UPDATE_PUBLIC_KEY,
+        BOARD_ID,
+        running_version,
+        ACTIVE_LEN,
+        take_boot_report(),
+    )
+}
+
+/// The bootloader's report (`shared::update::boot_report`), read and cleared.
+fn take_boot_report() -> Option<shared::update::BootReport> {
+    use shared::update::boot_report::WORDS;
+    let base = firmware::layout::BOOT_REPORT_ADDR as usize as *mut u32;
+    let mut words = [0u32; WORDS];
+    for (i, w) in words.iter_mut().enumerate() {
+        // SAFETY: the first 32 bytes of SRAM belong to neither ELF's sections (both memory.x files start RAM
+        // after them: `layout::BOOT_REPORT_LEN`); nothing else reads or writes them. Aligned, in bounds.
+        #[allow(unsafe_code)]
+        unsafe {
+            *w = base.add(i).read_volatile();
+            base.add(i).write_volatile(0);
+        }
+    }
+    shared::update::BootReport::from_words(&words)
+}
+
 /// Everything the application gets from the board.
 pub struct Board {
     pub clock: ClockSource,
@@ -344,6 +402,8 @@ pub struct Board {
     pub bus_rx: BusRx,
     pub bus_tx: BusTx,
     pub calib: CalibFlash,
+    /// The update service: the DFU slot, the boot state, the running image's version and the bootloader's report.
+    pub update: UpdateFlash,
     pub led: Led,
     pub cycles: firmware::app::CycleCounter,
     pub core_clock: CoreClock,
@@ -473,12 +533,13 @@ pub fn init(after_clock_failure: bool) -> Board {
     let mut bus_rx = bus_rx.into_ring_buffered(BUS_RX_RING.take());
     bus_rx.start_uart();
 
-    let region1 = Flash::new_blocking(p.FLASH)
-        .into_blocking_regions()
-        .bank1_region1;
-    let region1 = FLASH_REGION1.init(BlockingMutex::new(RefCell::new(Flash32(region1))));
+    let regions = Flash::new_blocking(p.FLASH).into_blocking_regions();
+    let region1 = FLASH_REGION1.init(BlockingMutex::new(RefCell::new(Flash32(
+        regions.bank1_region1,
+    ))));
     // Sectors 2–3; the partition checks at boot that both ends are on sector boundaries.
     let calib = BlockingPartition::new(region1, CAL_FLASH_BASE - REGION1_BASE, CALIB_LEN);
+    let update = update_service(regions.bank1_region2, regions.bank1_region3);
 
     let led = OutputOpenDrain::new(p.PC13, Level::High, Speed::Low);
 
@@ -521,6 +582,7 @@ pub fn init(after_clock_failure: bool) -> Board {
         bus_rx,
         bus_tx,
         calib,
+        update,
         led,
         cycles,
         core_clock: CoreClock,

@@ -80,7 +80,7 @@ pub const APP_FLASH_BUDGET: u32 = ACTIVE_LEN / 4 * 3;
 /// This board's identity in an image header (`shared::update::image::Header::board_id`): an image built for
 /// another board is refused. "O5" (0x4F05) for the STM32F405, then the IMU cluster board's revision 16.01. A new
 /// board (or one whose images must not cross) takes a new number.
-pub const BOARD_ID: u32 = 0x4F05_1601;
+pub const BOARD_ID: u32 = shared::update::BOARD_ID;
 
 /// Start of SRAM1 + SRAM2 (128 KiB, contiguous).
 pub const SRAM_BASE: u32 = 0x2000_0000;

@@ -33,6 +33,7 @@ pub mod resets;
 #[cfg(feature = "sim")]
 pub mod sim;
 pub mod tasks;
+pub mod update;
 
 /// The STM32 USART's receive errors as the link loop counts them (here, not in `board.rs`: the orphan rule wants
 /// the trait's crate).

@@ -54,6 +54,7 @@ static APP: ConstStaticCell<FwApp> = ConstStaticCell::new(App::new(
     app::Platform::NONE,
 ));
 static STORE: StaticCell<CalStore<board::CalibFlash>> = StaticCell::new();
+static UPDATE: StaticCell<board::UpdateFlash> = StaticCell::new();
 
 /// The edges' types as the tasks take them (embassy tasks cannot be generic).
 type FpgaRx = board::FpgaRx;
@@ -62,6 +63,7 @@ type CoreClock = board::CoreClock;
 type BusRx = board::BusRx;
 type BusTx = board::BusTx;
 type Store = &'static mut CalStore<board::CalibFlash>;
+type Update = &'static mut board::UpdateFlash;
 type Watchdog = board::Watchdog;
 type Led = board::Led;
 type Pps = board::Pps;
@@ -167,6 +169,7 @@ async fn main(spawner: Spawner) {
         bus_rx: b.bus_rx,
         bus_tx: b.bus_tx,
         store,
+        update: UPDATE.init(b.update),
         watchdog: wdt,
         led: b.led,
         pps: b.pps,

@@ -5,7 +5,7 @@
 
 /// What the tasks take from the board, one field per edge (the flight board's peripherals, or the SITL's models).
 /// Each field goes to exactly one task of [`task_table!`](crate::task_table), which names it.
-pub struct Edges<FpgaRx, FpgaTx, CoreClock, BusRx, BusTx, Store, Watchdog, Led, Pps> {
+pub struct Edges<FpgaRx, FpgaTx, CoreClock, BusRx, BusTx, Store, Update, Watchdog, Led, Pps> {
     /// FPGA → MCU: frames (USART1's DMA ring).
     pub fpga_rx: FpgaRx,
     /// MCU → FPGA: control messages.
@@ -16,8 +16,10 @@ pub struct Edges<FpgaRx, FpgaTx, CoreClock, BusRx, BusTx, Store, Watchdog, Led, 
     pub bus_rx: BusRx,
     /// MCU → ground: bus bytes.
     pub bus_tx: BusTx,
-    /// The calibration store (flash sectors 1–2).
+    /// The calibration store (its two flash sectors, `layout::CAL_FLASH_BASE`).
     pub store: Store,
+    /// The update service's flash: the DFU slot and the boot state ([`crate::update::Updater`]).
+    pub update: Update,
     /// The independent watchdog: `pet()` reloads it.
     pub watchdog: Watchdog,
     /// The status LED.
@@ -40,7 +42,7 @@ macro_rules! task_table {
                 $crate::app::fpga_ctrl_loop(app, &mut fpga_tx, &mut core_clock);
             bus_rx(bus_rx: BusRx) => $crate::app::bus_rx_loop(app, &mut bus_rx);
             bus_tx(bus_tx: BusTx) => $crate::app::bus_tx_loop(app, &mut bus_tx);
-            storage(store: Store) => $crate::app::storage_loop(app, store);
+            storage(store: Store, update: Update) => $crate::app::storage_loop(app, store, update);
             watchdog(watchdog: Watchdog, led: Led) =>
                 $crate::app::watchdog_loop(app, $crate::app::WATCHDOG_PERIOD, || watchdog.pet(), &mut led);
             housekeeping() => $crate::app::housekeeping_loop(app, $crate::app::LOG_EVERY);

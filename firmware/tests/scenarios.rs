@@ -139,9 +139,9 @@ fn slow_bus_drops_and_counts_telemetry_but_never_holds_up_the_link() {
             result: Ok(())
         }]
     );
-    // One Fused and one Nav report per frame, a Health every 19 outputs, Housekeeping every second.
+    // One Fused and one Nav report per frame, a Health every 19 outputs, Housekeeping and Update every second.
     let produced =
-        2 * frames_n + frames_n / 19 + c.silent_health as usize + c.housekeeping as usize;
+        2 * frames_n + frames_n / 19 + c.silent_health as usize + 2 * c.housekeeping as usize;
     let got = ground
         .telemetry
         .iter()
@@ -152,6 +152,7 @@ fn slow_bus_drops_and_counts_telemetry_but_never_holds_up_the_link() {
                     | Telemetry::Nav(_)
                     | Telemetry::Health(_)
                     | Telemetry::Housekeeping(_)
+                    | Telemetry::Update(_)
             )
         })
         .count();

@@ -24,3 +24,4 @@ pub mod stats;
 pub mod testrng;
 pub mod thermal_check;
 pub mod twin;
+pub mod update;

@@ -34,4 +34,5 @@ pub mod storage;
 pub mod telemetry;
 #[cfg(test)]
 mod testutil;
+pub mod update;
 pub mod wire;

@@ -425,6 +425,9 @@ pub enum Telemetry {
     Pps(PpsReport),
     /// The reset history (appended, version 4), with every Housekeeping report.
     Resets(ResetHistory),
+    /// The software update's state (appended): running and DFU versions, the upload, the bootloader's state and
+    /// the last outcome (`docs/update.md`), with every Housekeeping report.
+    Update(crate::update::UpdateStatus),
 }
 
 /// The PPS discipline (`Pipeline::pps`): spacecraft time re-anchored on the whole second at each accepted edge.
@@ -625,7 +628,7 @@ mod tests {
         bytes.len()
     }
 
-    fn largest_telemetry() -> [Telemetry; 6] {
+    fn largest_telemetry() -> [Telemetry; 7] {
         let faults = FaultCounts {
             saturated: u32::MAX,
             stuck: u32::MAX,
@@ -760,6 +763,23 @@ mod tests {
                         fault_addr: u32::MAX,
                     }),
                 }); RESET_HISTORY_LEN],
+            }),
+            Telemetry::Update(crate::update::UpdateStatus {
+                running_version: u32::MAX,
+                dfu_version: u32::MAX,
+                dfu: crate::update::DfuState::Committed,
+                received: u32::MAX,
+                payload_len: u32::MAX,
+                boot: crate::update::BootState::Unknown,
+                last: crate::update::UpdateOutcome::Reverted(u32::MAX),
+                counters: crate::update::UpdateCounters {
+                    requests: u32::MAX,
+                    refused: u32::MAX,
+                    crc_errors: u32::MAX,
+                    out_of_order: u32::MAX,
+                    duplicates: u32::MAX,
+                    erases: u32::MAX,
+                },
             }),
         ]
     }

@@ -5,6 +5,7 @@ Usage:
     python3 tools/fw-check/boot.py target/thumbv7em-none-eabihf/fw/firmware \
         [--json out.json] [--max-stack-percent 80] [--require-iwdg-before-clock] [-v]
         [--frames FILE|synth[:N] [--fused N] [--frame-rate 604.8] [--max-frames 400]]
+        [--flash-timing typ|max] [--flash-bsy-polls N]
 
 Exit status 0 only if the boot reached idle and every assertion passed; 1 if an assertion failed or the boot
 faulted/hung; 2 on a usage or tooling error (missing ELF, missing llvm-objdump, ...).
@@ -20,8 +21,8 @@ status, USART TXE/TC, ADC STRT/EOC, timers counting, ...).
 
 What is modelled
 ----------------
-* Memory: flash 1 MiB at 0x0800_0000 (erased = 0xFF outside the image, aliased at 0x0000_0000, read/execute only),
-  SRAM 128 KiB at 0x2000_0000, CCM 64 KiB at 0x1000_0000 (no execute), system memory 0x1FFF_0000..0x1FFF_7A2F
+* Memory: flash 1 MiB at 0x0800_0000 (erased = 0xFF outside the image, aliased at 0x0000_0000: one buffer seen at
+  both addresses; changed only by programming and erasing through the flash interface, see below), SRAM 128 KiB at 0x2000_0000, CCM 64 KiB at 0x1000_0000 (no execute), system memory 0x1FFF_0000..0x1FFF_7A2F
   (read only; unique ID, flash size and the factory calibration words VREFINT_CAL / TS_CAL1 / TS_CAL2 carry plausible
   values). Nothing else: 0x1FFF_7A30..0x1FFF_FFFF (just below SRAM, where a flip-link stack overflow goes) and
   0x2002_0000.. are unmapped, so an access there is a fault, as the BusFault it is on the chip. RAM that the reset
@@ -29,12 +30,12 @@ What is modelled
   the stack region is painted with a known pattern to measure its high-water mark.
 * Peripherals 0x4000_0000..0x4007_FFFF and 0x5000_0000..0x5006_0FFF: register files, with behaviour for RCC (ready
   bits follow their enables, SWS follows SW when the source is ready, reset flags POR|PIN|BOR at power-on, RMVF),
-  PWR (VOSRDY), FLASH interface (ACR, unlock keys, never busy), USART1/2 (TXE|TC, BRR, bytes written to DR are
+  PWR (VOSRDY), FLASH interface (programs and erases the flash: "Flash programming and erase"), USART1/2 (TXE|TC, BRR, bytes written to DR are
   collected), DMA1/2 (register file; EN reads back; no data moves), general-purpose timers (CNT counts at
   f_timer/(PSC+1) of the modelled virtual time, see below), IWDG (key writes logged, PR/RLR locked unless 0x5555,
   SR = 0), ADC1 (SWSTART sets STRT|EOC, DR gives a plausible code for the temperature / VREFINT channels), GPIO (BSRR,
   IDR = ODR for outputs). Any other peripheral block is a plain register file and its first access is logged.
-* PPB 0xE000_0000..0xE00F_FFFF: SCB (CPUID 0x410F_C241, VTOR, AIRCR - a SYSRESETREQ ends the run as a failure -
+* PPB 0xE000_0000..0xE00F_FFFF: SCB (CPUID 0x410F_C241, VTOR (exceptions are vectored through it), AIRCR - a SYSRESETREQ ends the run as a failure -
   CCR, SHPR, CFSR, CPACR, ...), NVIC (ISER/ICER/ISPR/ICPR/IPR/STIR as bitmaps), SysTick, DWT (CYCCNT = modelled
   cycles when enabled), DCB DEMCR, FPU FPCCR, DBGMCU (0xE004_2000).
 * Time: "virtual time" = instructions executed / HCLK of the moment (from the modelled RCC registers), i.e. one
@@ -73,6 +74,62 @@ the next idle after the line time at the configured baud rate. USART2's transfer
 generates N valid frames (mid-scale ADC codes, CRC-32C). Not modelled there: preemption of running code (interrupts
 wait for idle), priorities, UART errors, the FPGA's answer to control messages.
 
+Flash programming and erase (class FlashIf; RM0090 §3.5-3.9, DS8626)
+---------------------------------------------------------------------
+* Sectors: 0-3 16 KiB, 4 64 KiB, 5-11 128 KiB (RM0090 table 5, single bank). Erased = 0xFF.
+* FLASH_KEYR: KEY1 0x4567_0123 then KEY2 0xCDEF_89AB clears CR.LOCK; any other value while locked (or the right
+  ones in the wrong order) locks CR until the next reset and is a bus error (a fault here; a BusFault in emu.Sim).
+  A key written while unlocked is reported and ignored.
+* FLASH_CR: LOCK is write-1-only; while locked every write is ignored (and reported if it would change it). STRT
+  starts a sector erase (SER, SNB 0..11) or a mass erase (MER); SNB > 11, or STRT with neither, is reported and
+  refused (SNB > 11 sets WRPERR). PSIZE sets the parallelism: a program must be of that size (else PGPERR) and the
+  erase time depends on it. EOPIE/ERRIE: EOP is set at the end of an operation only with EOPIE, OPERR only with
+  ERRIE and a parallelism, alignment or write-protection error (RM0090 §3.9.5); the FLASH interrupt (IRQ 4) is a
+  level source of EOP&EOPIE | OPERR&ERRIE.
+* FLASH_SR: EOP, OPERR, WRPERR, PGAERR, PGPERR, PGSERR are write-1-to-clear. BSY: the CPU stalls for the whole
+  operation (one bank: every instruction fetch from flash waits), so virtual time moves on by the operation's
+  duration at once; BSY then reads as set for N reads of SR (--flash-bsy-polls; emu.Sim flash_bsy_polls; default 1) so that
+  the driver's wait loop runs. A write of CR ends them (a CR write while BSY stalls the bus until the end).
+* A store to flash memory (0x0800_0000.. or the alias 0..) is a program attempt: with PG set, unlocked, of PSIZE's
+  size, inside one 128-bit row (else PGAERR) and not write-protected, the flash holds old AND value ("successive
+  write operations are possible without the need of an erase operation when changing bits from 1 to 0", RM0090
+  §3.6.2: no error flag on the F4); a program that leaves other bits than stored (over a non-erased location) is
+  counted and reported. Without PG, or while CR is locked, the store does not program, PGSERR is set and the write
+  is reported (RM0090 does not say what a store with PG set after LOCK does: refused here, conservatively).
+* Durations (DS8626 table "Flash memory programming", VDD 2.7-3.6 V; --flash-timing max (default) or typ):
+  sector erase 16 KiB x8/x16/x32 0.4/0.3/0.25 s typ, 0.8/0.6/0.5 s max; 64 KiB 1.2/0.7/0.55 s typ, 2.4/1.4/1.1 s
+  max; 128 KiB 2/1.3/1 s typ, 4/2.6/2 s max; mass erase 16/11/8 s typ, 32/22/16 s max; word (any size) program
+  t_prog 16 µs typ, 100 µs max. PSIZE x64 needs VPP (not on this board): timed as x32, with a warning. Timers,
+  SysTick and the IWDG see the stall (they run on); in emu.Sim an IWDG expiry during an erase resets the chip at
+  the expiry and leaves the sector pseudo-random (an interrupted erase's contents are undefined).
+* Per run (`Machine.flash_summary()`): each erase (sectors, start, duration, PSIZE, cut short?), unlocks, programs,
+  bytes, program time, over-programs and every violation (`flash_violation`: also a warning; boot.py's assertion
+  "flash interface used as RM0090 says" fails on any).
+* Implementation: both flash mappings are writable RAM to unicorn with a store hook that runs before the store and
+  a fix-up afterwards when the flash must not hold the stored value (a refused or over-program); the fix-up is
+  applied at the next block, flash-interface access or flash store, so a read of that location in the same
+  translation block right after such a store would still see the stored value (never in a driver: it waits on SR
+  in between). (unicorn 2.1.4's UC_HOOK_MEM_WRITE_PROT cannot be used: a "handled" write still stores, through a
+  stale TLB entry, and crashed now and then.) emu.Sim does the common accesses in C (fastblock): ≈ 360 k word
+  programs/s of embassy's unlock-program-wait-lock sequence on the build machine, ≈ 5.6 k/s in Python.
+* Not modelled: the ART accelerator's caches (no stale line after a program or erase; DCRST/ICRST are accepted, and
+  reported when written with the cache enabled, which RM0090 §3.9.1 forbids), option bytes (OPTCR reads its reset
+  value 0x0FFF_AAED: no write protection, no readout protection; OPTKEYR/OPTCR writes are ignored with a warning),
+  error flags blocking later operations, a program cut short by a reset, read-while-write timing of code running
+  from RAM (stalled like code in flash), DWT.CYCCNT during the stall (it does not count it), the erase of the code
+  being run (it is erased; execution then falls on 0xFFFF).
+
+Several ELFs and images in one flash (class ImageSet)
+-----------------------------------------------------
+A run can load the bootloader ELF (at 0x0800_0000), the application ELF (at ACTIVE + 0x200) and raw images at given
+addresses (a signed image in DFU, the boot state sector's words): `ImageSet(loaded, candidates, blobs)` (update.py
+uses it). Execution starts from the vector table at 0 (the alias of 0x0800_0000). The ELFs whose flash contents are
+all in place are identified at power-on, at every reset and at every VTOR write (the bootloader's jump); the
+instruction table, symbols, traps, defmt decoders (each ELF its own), task polls and WFE/SEV/WFI follow (a
+candidate ELF - the application in a DFU image - becomes active once the bootloader has copied it into place).
+An application ELF alone whose vector table is not at 0x0800_0000 (linked behind a bootloader) starts from its own
+vector table with VTOR set to it ("direct boot", an event), as if a bootloader had jumped to it.
+
 What is NOT modelled
 --------------------
 * During the boot check no exception or interrupt is delivered (no SysTick, TIM5 alarms, DMA/USART interrupts,
@@ -83,8 +140,7 @@ What is NOT modelled
 * The FPU: unicorn executes VFP instructions whether or not CPACR enables CP10/CP11 (checked on unicorn 2.1.4), so
   a missing FPU enable would not fault here; the CPACR value written is checked as an assertion instead.
 * DMA moves no data; UART receivers never receive; timers do not raise update/compare flags; the watchdog never
-  bites (its configured timeout is reported); flash programming/erase is not modelled (a write to flash memory is
-  reported as a fault); the clock tree is only as good as the rules above (no PLL lock time, no HSE failure: the
+  bites (its configured timeout is reported); the clock tree is only as good as the rules above (no PLL lock time, no HSE failure: the
   crystal always starts, so the HSI fallback path of board.rs is not exercised).
 * Instruction counts come from unicorn's translation blocks and llvm-objdump's instruction list: exact for what ran,
   but they are instructions, not M4 cycles.
@@ -124,6 +180,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import collections
+import ctypes
 import hashlib
 import io
 import json
@@ -171,6 +228,27 @@ HSE_HZ, HSI_HZ, LSI_HZ = 8_000_000, 16_000_000, 32_000
 
 STACK_PAINT = 0xC5A5_5A5C  # a word the firmware is unlikely to write
 ERASED = 0xFF
+
+# Flash sectors of the 1 MiB single-bank F405 (RM0090 table 5): (start, size); index = SNB.
+FLASH_SECTORS = [(FLASH_BASE + o, s) for o, s in
+                 [(0x0000, 16 << 10), (0x4000, 16 << 10), (0x8000, 16 << 10), (0xC000, 16 << 10),
+                  (0x1_0000, 64 << 10)] + [(0x2_0000 * i, 128 << 10) for i in range(1, 8)]]
+# DS8626 table "Flash memory programming" (VDD 2.7-3.6 V): erase time (typ, max) in s by sector size and PSIZE
+# (0 = x8, 1 = x16, 2 = x32; x64 needs VPP: modelled as x32), mass erase, and the word program time t_prog.
+FLASH_ERASE_S = {16 << 10: [(0.4, 0.8), (0.3, 0.6), (0.25, 0.5)],
+                 64 << 10: [(1.2, 2.4), (0.7, 1.4), (0.55, 1.1)],
+                 128 << 10: [(2.0, 4.0), (1.3, 2.6), (1.0, 2.0)]}
+FLASH_MASS_ERASE_S = [(16.0, 32.0), (11.0, 22.0), (8.0, 16.0)]
+FLASH_PROGRAM_S = (16e-6, 100e-6)
+FLASH_TIMING = {"typ": 0, "max": 1}
+
+
+def flash_sector_of(addr: int):
+    """(SNB, start, size) of the sector holding a flash address (0x0800_0000-based), or None."""
+    for n, (start, size) in enumerate(FLASH_SECTORS):
+        if start <= addr < start + size:
+            return n, start, size
+    return None
 
 # RM0090 table 1 (F405/F407), 1 KiB blocks; name -> base
 PERIPHERALS = {
@@ -293,7 +371,7 @@ def demangle_legacy(sym: str) -> str:
 
 
 class Image:
-    def __init__(self, path: str, verbose: bool = False):
+    def __init__(self, path: str, verbose: bool = False, need_stack: bool = True):
         self.path = path
         with open(path, "rb") as f:
             raw = f.read()
@@ -306,9 +384,14 @@ class Image:
         if elf["e_machine"] != "EM_ARM":
             raise ToolError(f"boot.py: {path} is not an ARM ELF")
         self.segments = []  # (paddr, vaddr, data, memsz)
+        # PT_LOAD segments that hold sections (a linker may also load the ELF and program headers, in front of
+        # the first section: not part of the image)
+        alloc = [(s["sh_addr"], s["sh_size"]) for s in elf.iter_sections() if s["sh_flags"] & 2 and s["sh_size"]]
         for seg in elf.iter_segments():
             if seg["p_type"] == "PT_LOAD" and seg["p_memsz"]:
-                self.segments.append((seg["p_paddr"], seg["p_vaddr"], seg.data(), seg["p_memsz"]))
+                lo, hi = seg["p_vaddr"], seg["p_vaddr"] + seg["p_memsz"]
+                if any(lo <= a < hi for a, _ in alloc):
+                    self.segments.append((seg["p_paddr"], seg["p_vaddr"], seg.data(), seg["p_memsz"]))
         self.sections = {s.name: (s["sh_addr"], s["sh_size"]) for s in elf.iter_sections() if s["sh_addr"]}
         # symbols
         raw_syms, raw_objs = [], []
@@ -345,7 +428,15 @@ class Image:
         self.stack_start = self.addr_of.get("_stack_start")
         self.stack_end = self.addr_of.get("_stack_end")
         if self.stack_start is None or self.stack_end is None:
-            raise ToolError("boot.py: _stack_start/_stack_end not in the symbol table")
+            if need_stack:
+                raise ToolError("boot.py: _stack_start/_stack_end not in the symbol table")
+            # a bootloader without flip-link's _stack_end: the stack region is what SRAM leaves below its top
+            self.stack_start = self.stack_start or SRAM_BASE + SRAM_SIZE
+            self.stack_end = self.stack_end or SRAM_BASE
+        in_flash = sorted(p for p, _, d, _ in self.segments if FLASH_BASE <= p < FLASH_BASE + FLASH_SIZE and d)
+        # cortex-m-rt's vector table: where the reset vector is read from (0x0800_0000, or ACTIVE + 0x200 for an
+        # application started by the bootloader)
+        self.vector_table = self.sections.get(".vector_table", (in_flash[0] if in_flash else FLASH_BASE, 0))[0]
         # disassembly (instruction addresses, WFE/SEV/WFI, stack adjustments)
         self.insn_text = {}
         self._disassemble()
@@ -355,6 +446,18 @@ class Image:
                            if "TaskStorage<" in n and n.endswith("::poll")}
 
     # -- helpers ---------------------------------------------------------------------------------------------
+    def flash_segments(self):
+        """(address, bytes) of what the ELF puts into flash."""
+        return [(p, d) for p, _, d, _ in self.segments if FLASH_BASE <= p < FLASH_BASE + FLASH_SIZE and d]
+
+    def matches(self, flash) -> bool:
+        """Whether the flash contents (a bytes-like of FLASH_SIZE from 0x0800_0000) hold this ELF's image."""
+        segs = self.flash_segments()
+        return bool(segs) and all(flash[p - FLASH_BASE:p - FLASH_BASE + len(d)] == d for p, d in segs)
+
+    def label(self) -> str:
+        return f"{os.path.basename(self.path)} (0x{self.vector_table:08x}, sha256 {self.sha256[:12]})"
+
     @staticmethod
     def _demangle(names):
         tool = shutil.which("llvm-cxxfilt") or shutil.which("rustfilt") or shutil.which("c++filt")
@@ -480,6 +583,79 @@ class Image:
                     frames[start] = max(frames.get(start, 0), int(m.group(1)))
         ranked = sorted(frames.items(), key=lambda kv: -kv[1])[:top]
         return [(start, self.func_at(start)[0], n) for start, n in ranked]
+
+
+class ImageSet(Image):
+    """Several ELFs and raw binary images in one flash, presented as one Image (the update's bootloader at
+    0x0800_0000, an application at ACTIVE + 0x200, a signed image in DFU, the boot state sector).
+
+    `loaded`: ELFs whose flash contents are loaded at their addresses; `candidates`: ELFs that may come to be in
+    flash during the run (the application in the DFU image, which the bootloader's swap copies to ACTIVE); `blobs`:
+    (address, bytes, name) raw images written into flash after the ELFs (a later one wins where they overlap).
+    The code in flash is identified at power-on and every reset and VTOR write (`identify`): every known ELF whose
+    flash contents are all in place is *active*; the instruction table, symbols, task polls, WFE/SEV/WFI, traps and
+    defmt decoders are the union of the active ELFs'. Stack bounds, sections, RAM objects and the reported path are
+    the *primary* ELF's: the active one linked highest (the application, not the bootloader)."""
+
+    def __init__(self, loaded, candidates=(), blobs=()):
+        seen, self.known = set(), []
+        for im in list(loaded) + list(candidates):
+            if im.sha256 not in seen:
+                seen.add(im.sha256)
+                self.known.append(im)
+        self.loaded = list(loaded)
+        self.blobs = [(a, bytes(d), n) for a, d, n in blobs]
+        for a, d, n in self.blobs:
+            if not (FLASH_BASE <= a and a + len(d) <= FLASH_BASE + FLASH_SIZE):
+                raise ToolError(f"boot.py: image {n} at 0x{a:08x} (+{len(d)} B) is not inside flash")
+        self.segments = [s for im in self.loaded for s in im.segments] + [(a, a, d, len(d)) for a, d, _ in self.blobs]
+        self.set_active(self.loaded or self.known[:1])
+
+    def set_active(self, active):
+        self.active = list(active)
+        parts = self.active or self.known[-1:]
+        p = self.primary = max(parts, key=lambda im: im.vector_table)
+        order = [p] + [im for im in parts if im is not p]
+        self.path, self.sha256, self.mtime = p.path, p.sha256, p.mtime
+        self.sections, self.objects = p.sections, p.objects
+        self.stack_start, self.stack_end, self.vector_table = p.stack_start, p.stack_end, p.vector_table
+        self.insn_text = {}
+        for im in reversed(order):
+            self.insn_text.update(im.insn_text)
+        self.insn_sorted = sorted(self.insn_text)
+        self.wfe = set().union(*(im.wfe for im in parts))
+        self.wfi = set().union(*(im.wfi for im in parts))
+        self.sev = set().union(*(im.sev for im in parts))
+        funcs = {}
+        for im in reversed(order):
+            funcs.update({f[0]: f for f in im.funcs})
+        self.funcs = sorted(funcs.values())
+        self.func_addrs = [f[0] for f in self.funcs]
+        self.task_polls, self.task_labels, self.addr_of, self.demangled_by_mangled = {}, {}, {}, {}
+        for im in order:
+            self.task_polls.update(im.task_polls)
+            self.task_labels.update(im.task_labels)
+            for k, v in im.addr_of.items():
+                self.addr_of.setdefault(k, v)
+            for k, v in im.demangled_by_mangled.items():
+                self.demangled_by_mangled.setdefault(k, v)
+        self.__dict__.pop("_objs", None)
+
+    def identify(self, flash) -> bool:
+        """Which known ELFs are in flash now; True if that changed."""
+        active = [im for im in self.known if im.matches(flash)]
+        if [im.sha256 for im in active] == [im.sha256 for im in self.active]:
+            return False
+        self.set_active(active)
+        return True
+
+    def part_at(self, addr: int):
+        """The active ELF whose code holds addr, or None."""
+        for im in self.active:
+            name, _ = im.func_at(addr)
+            if name is not None:
+                return im
+        return None
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -846,47 +1022,186 @@ class Pwr(Periph):
         return v | (1 << 14) if off == 0x04 else v
 
 
+class FlashRegs:
+    """The flash interface's state (emu.Sim keeps it in fastblock's C struct instead: same field names)."""
+
+    def __init__(self):
+        self.f_acr = self.f_cr = self.f_sr = self.f_optcr = self.f_key = self.f_dead = self.f_busy = 0
+
+
 class FlashIf(Periph):
-    ACR, KEYR, SR, CR, OPTCR = 0x00, 0x04, 0x0C, 0x10, 0x14
-    resets = {0x10: 0x8000_0000, 0x14: 0x0FFF_AAED}
+    """The flash interface (RM0090 §3.5-3.9) and the flash memory it programs and erases.
 
-    def __init__(self, *a):
-        super().__init__(*a)
-        self.key_state = 0
+    KEYR unlock sequence (a wrong key: locked until reset and a bus error), CR (LOCK write-1-only, writes ignored
+    while locked, PG/SER/MER/SNB/PSIZE/STRT/EOPIE/ERRIE), SR (EOP/OPERR/WRPERR/PGAERR/PGPERR/PGSERR write-1-to-
+    clear, BSY for `bsy_polls` reads after each operation), ACR (latency event, DCRST/ICRST pulses), OPTCR read-only
+    at its reset value (no write protection). The operations themselves, their timing and their log are described
+    in the module docstring ("Flash programming and erase"). The registers live in `self.s` (a FlashRegs, or
+    emu.Sim's C struct, whose fast path handles the common accesses itself and calls this class for the rest)."""
+    ACR, KEYR, OPTKEYR, SR, CR, OPTCR = 0x00, 0x04, 0x08, 0x0C, 0x10, 0x14
+    CR_RESET, OPTCR_RESET = 0x8000_0000, 0x0FFF_AAED
+    PG, SER, MER, STRT, EOPIE, ERRIE, LOCK = 1, 2, 4, 1 << 16, 1 << 24, 1 << 25, 1 << 31
+    EOP, OPERR, WRPERR, PGAERR, PGPERR, PGSERR, BSY = 1, 2, 1 << 4, 1 << 5, 1 << 6, 1 << 7, 1 << 16
+    SR_W1C = EOP | OPERR | WRPERR | PGAERR | PGPERR | PGSERR
+    KEY1, KEY2 = 0x4567_0123, 0xCDEF_89AB
+    ERR_NAMES = {PGSERR: "PGSERR", PGPERR: "PGPERR", PGAERR: "PGAERR", WRPERR: "WRPERR"}
 
+    def __init__(self, machine, name, base, regs=None):
+        self.m, self.name, self.base = machine, name, base
+        s = self.s = regs if regs is not None else FlashRegs()
+        s.f_acr, s.f_cr, s.f_sr, s.f_optcr = 0, self.CR_RESET, 0, self.OPTCR_RESET
+        s.f_key = s.f_dead = s.f_busy = 0
+
+    @property
+    def regs(self) -> dict:
+        """The readable registers as a dict (reports, the wait-state check)."""
+        s = self.s
+        return {self.ACR: s.f_acr, self.CR: s.f_cr, self.OPTCR: s.f_optcr}
+
+    # -- registers ---------------------------------------------------------------------------------------------
     def read_word(self, off):
+        s = self.s
         if off == self.SR:
-            return 0  # never busy, no error flags
-        if off == self.KEYR:
-            return 0
-        return self.regs.get(off, 0)
+            v = s.f_sr
+            if s.f_busy:
+                s.f_busy -= 1
+                v |= self.BSY
+            return v
+        return {self.ACR: s.f_acr, self.CR: s.f_cr, self.OPTCR: s.f_optcr}.get(off, 0)
+
+    def write(self, off, size, value):
+        aligned, shift = off & ~3, 8 * (off & 3)
+        mask = ((1 << (8 * size)) - 1) << shift
+        old = self.read_word(aligned) if aligned != self.SR else 0
+        self.write_word(aligned, (old & ~mask) | ((value << shift) & mask), mask)
 
     def write_word(self, off, value, mask=0xFFFF_FFFF):
+        m, s = self.m, self.s
         if off == self.KEYR:
-            if self.key_state == 0 and value == 0x4567_0123:
-                self.key_state = 1
-            elif self.key_state == 1 and value == 0xCDEF_89AB:
-                self.regs[self.CR] &= ~(1 << 31)
-                self.key_state = 0
-                self.m.event("flash_unlock", "FLASH_CR unlocked")
-            else:
-                self.key_state = 0
-            return
-        if off == self.ACR:
-            old = self.regs.get(off, 0)
+            self._key(value)
+        elif off == self.SR:
+            s.f_sr &= ~(value & self.SR_W1C)
+        elif off == self.ACR:
+            old = s.f_acr
             if (value ^ old) & 0xF:
-                self.m.event("flash_latency", f"FLASH_ACR LATENCY={value & 0xF}")
-            self.regs[off] = value & ~((1 << 11) | (1 << 12))  # ICRST/DCRST: reset pulses, read back 0 here
-            self.m.check_wait_states("FLASH_ACR write")
+                m.event("flash_latency", f"FLASH_ACR LATENCY={value & 0xF}")
+            # DCRST/ICRST "can be written only when the cache is disabled" (RM0090 §3.9.1)
+            if value & (1 << 12) and value & (1 << 10):
+                m.flash_violation("FLASH_ACR DCRST set with DCEN set (the D-cache must be disabled to be reset)")
+            if value & (1 << 11) and value & (1 << 9):
+                m.flash_violation("FLASH_ACR ICRST set with ICEN set (the I-cache must be disabled to be reset)")
+            s.f_acr = value & ~((1 << 11) | (1 << 12))  # ICRST/DCRST: no cache is modelled, read back 0
+            m.check_wait_states("FLASH_ACR write")
+        elif off == self.CR:
+            self._write_cr(value)
+        elif off in (self.OPTKEYR, self.OPTCR):
+            m.warn(f"FLASH_{'OPTKEYR' if off == self.OPTKEYR else 'OPTCR'} written: option bytes are not modelled "
+                   "(read-only at their reset value)")
+
+    def _key(self, value):
+        m, s = self.m, self.s
+        if not s.f_cr & self.LOCK:
+            m.flash_violation(f"FLASH_KEYR written with 0x{value:08x} while FLASH_CR is unlocked")
             return
-        if off == self.CR:
-            if self.regs[self.CR] & (1 << 31) and not value & (1 << 31):
-                self.m.warn("FLASH_CR written while locked (ignored by hardware)")
+        if s.f_dead:
+            m.flash_violation("FLASH_KEYR written after a wrong unlock sequence (locked until reset)")
+            return
+        if s.f_key == 0 and value == self.KEY1:
+            s.f_key = 1
+        elif s.f_key == 1 and value == self.KEY2:
+            s.f_cr &= ~self.LOCK
+            s.f_key = 0
+            m.flash_log["unlocks"] += 1
+        else:
+            s.f_key, s.f_dead = 0, 1
+            m.flash_violation(f"FLASH_KEYR: wrong unlock sequence (0x{value:08x}): FLASH_CR locked until reset, "
+                              "bus error")
+            m.stop("fault", "FLASH_KEYR: a wrong unlock sequence returns a bus error (RM0090 §3.5.1)")
+
+    def _write_cr(self, value) -> bool:
+        """A write of FLASH_CR (STRT as written); False if ignored (locked)."""
+        s = self.s
+        old = s.f_cr
+        s.f_busy = 0  # a CR write while BSY stalls the bus until the operation ends (RM0090 §3.9.7)
+        if old & self.LOCK:
+            if value & ~self.STRT != old:
+                self.m.flash_violation(f"FLASH_CR written (0x{value:08x}) while locked (ignored by hardware)")
+            return False
+        s.f_cr = value & ~self.STRT  # STRT starts the operation and reads back 0 once it ends
+        if value & self.STRT:
+            self.start(value)
+        return True
+
+    # -- operations --------------------------------------------------------------------------------------------
+    def _done(self, errors: int = 0):
+        """End of an operation: flags, BSY for the next `bsy_polls` reads of SR (the CPU stalled for the operation
+        already: BSY is only there to exercise the firmware's wait loop)."""
+        s = self.s
+        if errors:
+            s.f_sr |= errors
+            if s.f_cr & self.ERRIE and errors & (self.PGPERR | self.PGAERR | self.WRPERR):
+                s.f_sr |= self.OPERR
+        elif s.f_cr & self.EOPIE:
+            s.f_sr |= self.EOP
+        s.f_busy = 0 if errors else self.m.flash_bsy_polls  # a refused operation does not start
+
+    def _wrp(self, snb: int) -> bool:
+        return not (self.s.f_optcr >> 16) & (1 << snb)
+
+    def start(self, cr):
+        """STRT: a sector (SER, SNB) or mass (MER) erase."""
+        m = self.m
+        psize = (cr >> 8) & 3
+        if psize == 3:
+            m.warn("FLASH_CR PSIZE=x64 needs VPP on the chip's pin (not on this board): erase timed as x32")
+        if cr & self.MER:
+            sectors = list(range(len(FLASH_SECTORS)))
+        elif cr & self.SER:
+            snb = (cr >> 3) & 0xF
+            if snb >= len(FLASH_SECTORS):
+                m.flash_violation(f"FLASH_CR STRT with SNB={snb}: no such sector on the 1 MiB F405")
+                self._done(self.WRPERR)
                 return
-            if value & (1 << 16):  # STRT
-                self.m.warn("FLASH_CR STRT: erase requested (flash erase/program is not modelled)")
-                value &= ~(1 << 16)
-        self.regs[off] = value
+            sectors = [snb]
+        else:
+            m.flash_violation("FLASH_CR STRT without SER or MER (nothing to erase)")
+            return
+        if any(self._wrp(n) for n in sectors):
+            self._done(self.WRPERR)
+            return
+        m.flash_erase(sectors, min(psize, 2), bool(cr & self.MER))
+        self._done()
+
+    def program(self, off: int, size: int, value: int, old: int) -> int:
+        """A store of `value` to flash offset `off` (from 0x0800_0000 or the boot alias) where the flash holds
+        `old`: returns what the flash holds after it (the machine makes it so after the store)."""
+        m, cr = self.m, self.s.f_cr
+        if cr & self.LOCK or not cr & self.PG:
+            m.flash_violation(f"write of {size} B (0x{value:0{2 * size}x}) to flash 0x{FLASH_BASE + off:08x} "
+                              + ("while FLASH_CR is locked" if cr & self.LOCK else "without FLASH_CR.PG")
+                              + ": not programmed, PGSERR")
+            self.s.f_sr |= self.PGSERR
+            return old
+        err = 0
+        if size != 1 << ((cr >> 8) & 3):
+            err |= self.PGPERR
+        if (off & 15) + size > 16:
+            err |= self.PGAERR
+        sec = flash_sector_of(FLASH_BASE + off)
+        if sec is not None and self._wrp(sec[0]):
+            err |= self.WRPERR
+        if err:
+            m.flash_violation(f"write of {size} B to flash 0x{FLASH_BASE + off:08x} with PSIZE=x{8 << ((cr >> 8) & 3)}: "
+                              + "|".join(n for b, n in self.ERR_NAMES.items() if err & b) + ", not programmed")
+            self._done(err)
+            return old
+        new = m.flash_program(off, size, value, old)
+        self._done()
+        return new
+
+    def irq_pending(self) -> bool:
+        s = self.s
+        return bool((s.f_cr & self.EOPIE and s.f_sr & self.EOP) or (s.f_cr & self.ERRIE and s.f_sr & self.OPERR))
 
 
 class Usart(Periph):
@@ -1185,7 +1500,7 @@ class Gpio(Periph):
 class Ppb(Periph):
     """System control space, DWT, DBGMCU, NVIC. Offsets relative to 0xE000_0000."""
     DWT_CTRL, DWT_CYCCNT = 0x1000, 0x1004
-    AIRCR, CPACR, DEMCR, STIR = 0xED0C, 0xED88, 0xEDFC, 0xEF00
+    VTOR, AIRCR, CPACR, DEMCR, STIR = 0xED08, 0xED0C, 0xED88, 0xEDFC, 0xEF00
     resets = {0x1000: 0x4000_0000, 0xE004: 0x2, 0xED00: 0x410F_C241, 0xED14: 0x0000_0200, 0xED90: 0x0000_0800,
               0xEF34: 0xC000_0000, 0x4_2000: 0x1007_6413, 0xE01C: 0x4000_0000 | (21_000 - 1)}
 
@@ -1234,6 +1549,9 @@ class Ppb(Periph):
                                          "panic or HardFault handler)")
             else:
                 self.m.warn("SCB_AIRCR written without VECTKEY 0x05FA (ignored by hardware)")
+        elif off == self.VTOR:
+            self.regs[off] = value & 0x3FFF_FF80  # TBLOFF, bits 29:7
+            self.m.vtor_written(self.regs[off])
         elif off == self.CPACR:
             self.regs[off] = value
             self.m.event("cpacr", f"SCB CPACR = 0x{value:08x}")
@@ -1274,6 +1592,11 @@ class Machine:
         self.trap = {}
         self.wait_state_violations = []
         self.idle = False
+        self.flash_timing = FLASH_TIMING[getattr(args, "flash_timing", None) or "max"]
+        self.flash_bsy_polls = getattr(args, "flash_bsy_polls", None)
+        self.flash_bsy_polls = 1 if self.flash_bsy_polls is None else self.flash_bsy_polls
+        self.flash_log = {"erases": [], "unlocks": 0, "programs": 0, "bytes_programmed": 0, "overprograms": 0, "program_s": 0.0,
+                          "erase_s": 0.0, "violations": [], "violation_count": 0}
 
         self.irq_counts = collections.Counter()
         self.tx_inflight, self.tx_log, self.bus_msgs = [], [], []
@@ -1327,16 +1650,120 @@ class Machine:
             self.stop_kind, self.stop_msg = kind, msg
         self.uc.emu_stop()
 
+    # -- flash programming and erase (FlashIf decides; these do it) --------------------------------------------
+    def flash_violation(self, text):
+        """Something the firmware did that the flash interface refuses or that the chip does not do as meant."""
+        log = self.flash_log
+        log["violation_count"] += 1
+        if len(log["violations"]) < 200:
+            log["violations"].append({"insn": self.insns, "t_us": round(self.now() * 1e6, 2),
+                                      "pc": self.last_block[0], "text": text})
+        self.warn(f"flash: {text}")
+
+    def flash_summary(self) -> dict:
+        """The run's flash activity: erases (sector, start, duration), word programs, violations."""
+        log = self.flash_log
+        return {"erases": log["erases"], "erase_count": len(log["erases"]), "erase_s": round(log["erase_s"], 6),
+                "unlocks": log["unlocks"], "programs": log["programs"], "bytes_programmed": log["bytes_programmed"],
+                "program_s": round(log["program_s"], 6), "overprograms": log["overprograms"],
+                "violation_count": log["violation_count"], "violations": log["violations"],
+                "timing": {v: k for k, v in FLASH_TIMING.items()}[self.flash_timing],
+                "bsy_polls": self.flash_bsy_polls}
+
+    def flash_stall(self, seconds: float, erase: bool = False) -> float:
+        """The flash is busy for `seconds`: the CPU stalls (single bank: every fetch from flash waits), virtual time
+        moves on for the timers and the watchdog. Returns the time that passed (Sim: less when the IWDG resets the
+        chip during an erase)."""
+        self.skip_time(seconds)
+        return seconds
+
+    def flash_program(self, off: int, size: int, value: int, old: int) -> int:
+        """Programs `size` bytes at flash offset `off`: a program can only clear bits (RM0090 §3.6.2: 'successive
+        write operations are possible without the need of an erase operation when changing bits from 1 to 0').
+        Returns the new contents."""
+        log = self.flash_log
+        new = old & value
+        if new != value:
+            log["overprograms"] += 1
+            self.flash_violation(f"program of 0x{value:0{2 * size}x} over 0x{old:0{2 * size}x} at "
+                                 f"0x{FLASH_BASE + off:08x} (not erased): the flash holds 0x{new:0{2 * size}x}")
+        log["programs"] += 1
+        log["bytes_programmed"] += size
+        log["program_s"] += self.flash_stall(FLASH_PROGRAM_S[self.flash_timing])
+        return new
+
+    def flash_erase(self, sectors, psize: int, mass: bool):
+        t, log = self.flash_timing, self.flash_log
+        d = FLASH_MASS_ERASE_S[psize][t] if mass else sum(FLASH_ERASE_S[FLASH_SECTORS[s][1]][psize][t]
+                                                              for s in sectors)
+        t0 = self.now()
+        done = self.flash_stall(d, erase=True)
+        cut = done < d - 1e-12
+        rng = random.Random(int(t0 * 1e6))
+        for s in sectors:
+            start, size = FLASH_SECTORS[s]
+            off = start - FLASH_BASE
+            if cut:  # a reset during the erase: the sector's contents are undefined (garbage here)
+                self.flash_mem[off:off + size] = rng.randbytes(size)
+            else:
+                ctypes.memset(ctypes.addressof(self.flash_buf) + off, ERASED, size)
+            self.code_changed(off, size)
+        what = "mass erase" if mass else f"sector {sectors[0]}"
+        log["erases"].append({"sectors": list(sectors), "mass": mass, "t_s": round(t0, 6), "duration_s": round(done, 6),
+                              "psize": f"x{8 << psize}", "cut": cut, "insn": self.insns})
+        log["erase_s"] += done
+        self.event("flash_erase", f"flash {what} at x{8 << psize}: {done * 1e3:.0f} ms"
+                   + (f" (cut short by a reset after {done * 1e3:.0f} of {d * 1e3:.0f} ms: contents undefined)"
+                      if cut else ""))
+
+    def code_changed(self, off: int, size: int):
+        """Flash changed under code unicorn may have translated: drop those translations (both mappings)."""
+        self.uc.ctl_remove_cache(FLASH_BASE + off, FLASH_BASE + off + size)
+        self.uc.ctl_remove_cache(off, off + size)
+
+    _flash_fix = None  # (offset, size, value): what the flash must hold once the store being hooked is done
+
+    def flash_sync(self):
+        """Applies the pending fix-up: the store hook runs before the store, which writes its raw value."""
+        fix = self._flash_fix
+        if fix is not None:
+            self._flash_fix = None
+            off, size, value = fix
+            self.flash_mem[off:off + size] = value.to_bytes(size, "little")
+
+    def _on_flash_write(self, uc, access, addr, size, value, _):
+        """A store to flash memory (both mappings are writable RAM to unicorn): the flash interface decides what
+        the flash holds afterwards; when that is not the value stored, a fix-up restores it right after the store
+        (at the next block, flash interface access, flash store or stop, whichever comes first)."""
+        if addr >= FLASH_BASE:
+            off = addr - FLASH_BASE
+        elif addr < FLASH_SIZE:
+            off = addr
+        else:
+            return
+        self.flash_sync()
+        value &= (1 << (8 * size)) - 1
+        old = int.from_bytes(self.flash_mem[off:off + size], "little")
+        new = self.flash.program(off, size, value, old)
+        if new != value:
+            self._flash_fix = (off, size, new)
+
     # -- memory ------------------------------------------------------------------------------------------------
     def _map_memory(self):
         uc, img = self.uc, self.img
         rng = random.Random(0xF405)
-        flash = bytearray([ERASED]) * FLASH_SIZE
+        # flash: one host buffer mapped at 0x0800_0000 and at the boot alias 0 (BOOT0 = 0), so that both see every
+        # program and erase; read/execute only, a store is a program attempt (`_on_flash_write`)
+        self.flash_buf = (ctypes.c_ubyte * FLASH_SIZE)()
+        ctypes.memset(self.flash_buf, ERASED, FLASH_SIZE)
+        self.flash_mem = memoryview(self.flash_buf).cast("B")
         sram = bytearray(rng.getrandbits(8) for _ in range(SRAM_SIZE))  # power-on garbage
         ccm = bytearray(rng.getrandbits(8) for _ in range(CCM_SIZE))
         for paddr, vaddr, data, memsz in img.segments:
             if FLASH_BASE <= paddr < FLASH_BASE + FLASH_SIZE:
-                flash[paddr - FLASH_BASE:paddr - FLASH_BASE + len(data)] = data
+                if paddr + len(data) > FLASH_BASE + FLASH_SIZE:
+                    raise ToolError(f"boot.py: a segment at 0x{paddr:08x} ({len(data)} B) runs past the flash")
+                self.flash_mem[paddr - FLASH_BASE:paddr - FLASH_BASE + len(data)] = data
             elif SRAM_BASE <= paddr < SRAM_BASE + SRAM_SIZE and data:
                 raise ToolError(f"boot.py: a segment loads into SRAM at 0x{paddr:08x} (no flash image?)")
             elif not (SRAM_BASE <= paddr < SRAM_BASE + SRAM_SIZE or CCM_BASE <= paddr < CCM_BASE + CCM_SIZE):
@@ -1346,11 +1773,13 @@ class Machine:
         if not (0 <= lo <= hi <= SRAM_SIZE):
             raise ToolError(f"boot.py: stack [0x{img.stack_end:08x}, 0x{img.stack_start:08x}) is not in SRAM")
         sram[lo:hi] = struct.pack("<I", STACK_PAINT) * ((hi - lo) // 4)
-        self.flash_image = bytes(flash)
-        uc.mem_map(FLASH_BASE, FLASH_SIZE, UC_PROT_READ | UC_PROT_EXEC)
-        uc.mem_write(FLASH_BASE, self.flash_image)
-        uc.mem_map(0, FLASH_SIZE, UC_PROT_READ | UC_PROT_EXEC)  # boot alias (BOOT0 = 0)
-        uc.mem_write(0, self.flash_image)
+        self.flash_image = self.flash_mem  # live: what the flash holds now
+        self.flash_at_reset = bytes(self.flash_mem)
+        # writable to unicorn: a store reaches the memory after the store hook, which decides what it holds (a
+        # write-protected mapping with a "handled" UC_HOOK_MEM_WRITE_PROT still stores, through a stale TLB entry)
+        uc.mem_map_ptr(FLASH_BASE, FLASH_SIZE, UC_PROT_ALL, self.flash_buf)
+        uc.mem_map_ptr(0, FLASH_SIZE, UC_PROT_ALL, self.flash_buf)
+        self._flash_store_hook()
         uc.mem_map(SRAM_BASE, SRAM_SIZE, UC_PROT_ALL)
         uc.mem_write(SRAM_BASE, bytes(sram))
         uc.mem_map(CCM_BASE, CCM_SIZE, UC_PROT_READ | UC_PROT_WRITE)
@@ -1367,6 +1796,9 @@ class Machine:
         uc.mem_map(SYSMEM_BASE, 0x7000, UC_PROT_READ)
         uc.mem_write(SYSMEM_BASE, self.sysmem[:0x7000])
         uc.mmio_map(SYSMEM_BASE + 0x7000, 0x1000, self._sysmem_read, None, self._sysmem_write, None)
+
+    def _flash_store_hook(self):
+        self.uc.hook_add(unicorn.UC_HOOK_MEM_WRITE, self._on_flash_write, begin=0, end=FLASH_BASE + FLASH_SIZE - 1)
 
     def _sysmem_read(self, uc, off, size, _):
         addr = SYSMEM_BASE + 0x7000 + off
@@ -1392,9 +1824,41 @@ class Machine:
         self.rcc, self.flash = self.blocks[PERIPHERALS["RCC"]], self.blocks[PERIPHERALS["FLASH"]]
         self.ppb = Ppb(self, "PPB", PPB_BASE)
         self.block_starts = sorted(self.blocks)
+        self._map_windows()
+
+    def _map_windows(self):
+        """The MMIO windows; the flash interface's 1 KiB gets its own (a lean path: a program or erase touches it
+        about ten times per word)."""
+        fl = PERIPHERALS["FLASH"]
         for base, size in PERIPH_WINDOWS:
-            self.uc.mmio_map(base, size, self._periph_read, base, self._periph_write, base)
+            if base <= fl < base + size:
+                self.uc.mmio_map(base, fl - base, self._periph_read, base, self._periph_write, base)
+                self.uc.mmio_map(fl, 0x400, self._flash_read, None, self._flash_write, None)
+                rest = fl + 0x400
+                self.uc.mmio_map(rest, base + size - rest, self._periph_read, rest, self._periph_write, rest)
+            else:
+                self.uc.mmio_map(base, size, self._periph_read, base, self._periph_write, base)
         self.uc.mmio_map(PPB_BASE, PPB_SIZE, self._ppb_read, None, self._ppb_write, None)
+
+    def _flash_read(self, uc, off, size, _):
+        self.flash_sync()
+        p = self.flash
+        if "FLASH" not in self.touched:
+            self._touch(p, "read", p.base + off)
+        v = p.read(off, size)
+        if self.args.trace_mmio:
+            print(f"    R{size} 0x{p.base + off:08x} FLASH+0x{off:03x} -> 0x{v:08x}")
+        return v
+
+    def _flash_write(self, uc, off, size, value, _):
+        self.flash_sync()
+        p = self.flash
+        if "FLASH" not in self.touched:
+            self._touch(p, "write", p.base + off, value)
+        self.last_read = None
+        if self.args.trace_mmio:
+            print(f"    W{size} 0x{p.base + off:08x} FLASH+0x{off:03x} <- 0x{value:08x}")
+        p.write(off, size, value)
 
     def _block(self, addr):
         i = bisect.bisect_right(self.block_starts, addr) - 1
@@ -1463,47 +1927,106 @@ class Machine:
 
     # -- hooks -------------------------------------------------------------------------------------------------
     def _install_hooks(self):
-        uc, img = self.uc, self.img
-        vt = self.flash_image[:16 * 4]
-        vec = struct.unpack("<16I", vt)
-        names = ["", "", "NMI", "HardFault", "MemManage", "BusFault", "UsageFault", "", "", "", "", "SVCall",
-                 "DebugMonitor", "", "PendSV", "SysTick"]
-        for name, what in (("DefaultHandler", "DefaultHandler (an unexpected exception or interrupt)"),
-                           ("DefaultHandler_", "DefaultHandler (an unexpected exception or interrupt)"),
-                           ("HardFault", "the HardFault handler"), ("_HardFault", "the HardFault handler"),
-                           ("HardFaultTrampoline", "the HardFault trampoline"),
-                           ("__rustc::rust_begin_unwind", "the panic handler (rust_begin_unwind)"),
-                           ("rust_begin_unwind", "the panic handler (rust_begin_unwind)"),
-                           ("_defmt_panic", "defmt's panic (defmt::panic!/unwrap!/assert!)"),
-                           ("core::panicking::panic_fmt", "core::panicking::panic_fmt (a panic)")):
-            a = img.addr_of.get(name)
-            if a:
-                self.trap.setdefault(a & ~1, what)
-        # the fault and system handlers of the vector table (SVCall, PendSV, SysTick are legitimate if used)
-        for i in (2, 3, 4, 5, 6, 12):
-            if vec[i] and vec[i] != 0xFFFF_FFFF:
-                self.trap.setdefault(vec[i] & ~1, f"the {names[i]} handler ({img.func_at(vec[i])[0]})")
-        for a, _, n, _ in img.funcs:
-            if n.endswith("__cortex_m_rt_HardFault"):
-                self.trap.setdefault(a, "the HardFault handler")
-        # defmt: collect the raw frames (acquire .. write* .. release) and decode them
-        self.defmt = Defmt(img)
+        uc = self.uc
         self.log, self._frame = [], None
-        self.special = {}
-        for name, fn in (("_defmt_acquire", self._on_defmt_acquire), ("_defmt_write", self._on_defmt_write),
-                         ("_defmt_release", self._on_defmt_release)):
-            a = img.addr_of.get(name)
-            if a:
-                self.special[a & ~1] = fn
+        self._symbol_hooks()
         uc.hook_add(UC_HOOK_BLOCK, self._on_block)
         uc.hook_add(UC_HOOK_MEM_INVALID, self._on_mem_invalid)
-        for a in sorted(img.sev):
-            uc.hook_add(UC_HOOK_CODE, self._on_sev, begin=a, end=a)
-        for a in sorted(img.wfi):
-            uc.hook_add(UC_HOOK_CODE, self._on_wfi, begin=a, end=a)
+        self._code_hooks()
+
+    def _parts(self):
+        """The ELF(s) whose code is in flash (one, or an ImageSet's active ones)."""
+        return getattr(self.img, "active", None) or [self.img]
+
+    def _symbol_hooks(self):
+        """Traps (fault/panic handlers) and the defmt hooks of the ELF(s) in flash."""
+        names = ["", "", "NMI", "HardFault", "MemManage", "BusFault", "UsageFault", "", "", "", "", "SVCall",
+                 "DebugMonitor", "", "PendSV", "SysTick"]
+        self.trap, self.special = {}, {}
+        self.defmt = None
+        for part in self._parts():
+            vt = part.vector_table - FLASH_BASE
+            vec = struct.unpack_from("<16I", self.flash_mem, vt) if 0 <= vt <= FLASH_SIZE - 64 else (0,) * 16
+            for name, what in (("DefaultHandler", "DefaultHandler (an unexpected exception or interrupt)"),
+                               ("DefaultHandler_", "DefaultHandler (an unexpected exception or interrupt)"),
+                               ("HardFault", "the HardFault handler"), ("_HardFault", "the HardFault handler"),
+                               ("HardFaultTrampoline", "the HardFault trampoline"),
+                               ("__rustc::rust_begin_unwind", "the panic handler (rust_begin_unwind)"),
+                               ("rust_begin_unwind", "the panic handler (rust_begin_unwind)"),
+                               ("_defmt_panic", "defmt's panic (defmt::panic!/unwrap!/assert!)"),
+                               ("core::panicking::panic_fmt", "core::panicking::panic_fmt (a panic)")):
+                a = part.addr_of.get(name)
+                if a:
+                    self.trap.setdefault(a & ~1, what)
+            # the fault and system handlers of the vector table (SVCall, PendSV, SysTick are legitimate if used)
+            for i in (2, 3, 4, 5, 6, 12):
+                if vec[i] and vec[i] != 0xFFFF_FFFF:
+                    self.trap.setdefault(vec[i] & ~1, f"the {names[i]} handler ({part.func_at(vec[i])[0]})")
+            for a, _, n, _ in part.funcs:
+                if n.endswith("__cortex_m_rt_HardFault"):
+                    self.trap.setdefault(a, "the HardFault handler")
+            # defmt: collect the raw frames (acquire .. write* .. release) and decode them (each ELF its strings)
+            dec = Defmt(part)
+            self.defmt = self.defmt or dec
+            for name, fn in (("_defmt_acquire", lambda uc, d=dec: self._on_defmt_acquire(uc, d)),
+                             ("_defmt_write", self._on_defmt_write), ("_defmt_release", self._on_defmt_release)):
+                a = part.addr_of.get(name)
+                if a:
+                    self.special[a & ~1] = fn
+
+    def _code_hooks(self):
+        """SEV and WFI: a code hook at each (again when the code in flash changes)."""
+        for h in getattr(self, "_code_hook_handles", []):
+            self.uc.hook_del(h)
+        self._code_hook_handles = [self.uc.hook_add(UC_HOOK_CODE, self._on_sev, begin=a, end=a)
+                                   for a in sorted(self.img.sev)]
+        self._code_hook_handles += [self.uc.hook_add(UC_HOOK_CODE, self._on_wfi, begin=a, end=a)
+                                    for a in sorted(self.img.wfi)]
+
+    # -- the code in flash changes (the bootloader swaps an image in and jumps to it) ---------------------------
+    def vtor_written(self, vtor: int):
+        self.event("vtor", f"SCB VTOR = 0x{vtor:08x}")
+        self.reidentify()
+        if isinstance(self.img, ImageSet) and FLASH_BASE < vtor < FLASH_BASE + FLASH_SIZE and not any(
+                im.vector_table == vtor for im in self.img.active):
+            self.warn(f"VTOR 0x{vtor:08x}: no given ELF's vector table is there in flash now")
+
+    def reidentify(self):
+        """Which of the given ELFs are in flash now (ImageSet only); the hooks follow when that changed."""
+        if isinstance(self.img, ImageSet) and self.img.identify(self.flash_mem):
+            self.event("images", "code in flash: " + (", ".join(im.label() for im in self.img.active)
+                                                      or "none of the given ELFs"))
+            self._images_changed()
+
+    def _images_changed(self):
+        self.binfo.clear()
+        self.polled.clear()
+        self._symbol_hooks()
+        self._code_hooks()
+
+    def boot_vector(self):
+        """(initial SP, reset PC, VTOR) at reset: the vector table at 0 (the boot alias of 0x0800_0000). When that
+        is erased and the ELF's vector table is elsewhere (an application linked behind a bootloader, run without
+        it), the ELF's, with VTOR pointing at it as the bootloader leaves it ("direct boot")."""
+        sp, pc = struct.unpack_from("<2I", self.flash_mem, 0)
+        vt = self.img.vector_table
+        if pc == 0xFFFF_FFFF and FLASH_BASE < vt <= FLASH_BASE + FLASH_SIZE - 8:
+            sp, pc = struct.unpack_from("<2I", self.flash_mem, vt - FLASH_BASE)
+            return sp, pc, vt
+        return sp, pc, 0
+
+    def vectors(self, n: int):
+        """The first n entries of the vector table VTOR points at."""
+        vtor = self.ppb.regs.get(Ppb.VTOR, 0)
+        try:
+            return struct.unpack(f"<{n}I", bytes(self.uc.mem_read(vtor, 4 * n)))
+        except UcError:
+            return (0,) * n
 
     def _on_block(self, uc, addr, size, _):
         """Every translation block: count, sample, and check SP after each block that may have moved it down."""
+        if self._flash_fix is not None:
+            self.flash_sync()
         info = self.binfo.get(addr)
         if info is None or info[0] != size:
             info = self.binfo[addr] = (size, *self.img.block_info(addr, size))
@@ -1579,7 +2102,9 @@ class Machine:
         self._fault_access(kind, addr, size, value)
         return False
 
-    def _on_defmt_acquire(self, uc):
+    def _on_defmt_acquire(self, uc, decoder=None):
+        if decoder is not None:
+            self.defmt = decoder
         self._frame = bytearray()
 
     def _on_defmt_write(self, uc):
@@ -1613,7 +2138,12 @@ class Machine:
         """Reset, then run to the executor's first idle (or a failure)."""
         uc = self.uc
         self.insn_limit = max_insns
-        vec = struct.unpack("<2I", self.flash_image[:8])
+        sp, pc, vtor = self.boot_vector()
+        vec = (sp, pc)
+        if vtor:
+            self.ppb.regs[Ppb.VTOR] = vtor
+            self.event("direct_boot", f"0x0800_0000 erased: started from the vector table at 0x{vtor:08x} "
+                                      "(VTOR set there, as a bootloader would)")
         uc.reg_write(UC_ARM_REG_SP, vec[0])
         self.initial_sp, self.reset_pc = vec[0], vec[1]
         self.deadline = time.monotonic() + timeout_s
@@ -1645,6 +2175,7 @@ class Machine:
                 uc.emu_start(pc | 1, self.UNTIL, timeout=int(min(slice_s, remaining) * 1e6))
             except UcError as e:
                 err = e
+            self.flash_sync()
             pc = self.pc()
             if self.stop_kind:
                 break
@@ -1693,6 +2224,7 @@ class Machine:
             out.append((irq, self.blocks[PERIPHERALS["DMA1"]], n))
         for n, irq in enumerate((56, 57, 58, 59, 60, 68, 69, 70)):
             out.append((irq, self.blocks[PERIPHERALS["DMA2"]], n))
+        out.append((4, self.flash, None))  # FLASH: EOP with EOPIE, OPERR with ERRIE
         return out
 
     def pending_irqs(self):
@@ -1712,7 +2244,7 @@ class Machine:
         """Exception entry (the frame pushed on MSP, LR = EXC_RETURN), the handler run to its return, then the
         interrupted context restored. False if the run stopped."""
         uc = self.uc
-        handler = struct.unpack_from("<I", self.flash_image, 4 * (16 + irq))[0]
+        handler = self.vectors(16 + irq + 1)[16 + irq]
         if not handler or handler == 0xFFFF_FFFF:
             self.stop("fault", f"IRQ {irq} ({IRQ_NAMES.get(irq)}) has no vector")
             return False
@@ -1935,6 +2467,11 @@ def check(m: Machine, args) -> tuple[list, dict]:
         "LATENCY=5, PRFTEN=ICEN=DCEN=1")
     res("flash wait states sufficient at every clock change", not m.wait_state_violations,
         "; ".join(m.wait_state_violations) or "ok", "HCLK <= 30 MHz x (LATENCY+1)")
+    fl = fig["flash"] = m.flash_summary()
+    res("flash interface used as RM0090 says (no write without PG, none while locked, no refused operation)",
+        not fl["violation_count"], f"{fl['violation_count']} violation(s)"
+        + (": " + "; ".join(v["text"] for v in fl["violations"][:3]) if fl["violation_count"] else
+           f"; {fl['erase_count']} erase(s), {fl['programs']} program(s)"), "none", at_idle=False)
 
     # clocks
     rcc = m.rcc
@@ -2015,7 +2552,7 @@ def check(m: Machine, args) -> tuple[list, dict]:
             "every word written (CCM is neither zeroed nor loaded at reset)")
 
     # informational figures
-    vec = struct.unpack(f"<{16 + 82}I", m.flash_image[:(16 + 82) * 4])
+    vec = m.vectors(16 + 82)
     default = img.addr_of.get("DefaultHandler")
     fig["nvic_enabled"] = [{"irq": n, "name": IRQ_NAMES.get(n, "?"), "priority": m.ppb.irq_priority(n),
                             "handler": img.func_at(vec[16 + n])[0] if n < 82 and vec[16 + n] else None,
@@ -2082,7 +2619,8 @@ def report(m: Machine, img: Image, results, fig, args):
     if m.unknown_blocks:
         print(f"  reserved blocks touched: {', '.join(run['unknown_blocks'])}")
     for e in m.events:
-        if e["kind"] in ("rcc_pllon", "clock", "iwdg_start", "dma_en", "cpacr", "flash_latency", "rcc_rmvf"):
+        if e["kind"] in ("rcc_pllon", "clock", "iwdg_start", "dma_en", "cpacr", "flash_latency", "rcc_rmvf",
+                         "flash_erase", "direct_boot", "vtor", "images"):
             print(f"    {e['t_us'] / 1e3:8.3f} ms  insn {e['insn']:>9,}  {e['text']}")
     if fig.get("nvic_enabled"):
         bound = [i for i in fig["nvic_enabled"] if not i["default_handler"]]
@@ -2157,6 +2695,10 @@ def main(argv=None) -> int:
     ap.add_argument("--frame-rate", type=float, default=604.8, help="frames per second of virtual time (604.8)")
     ap.add_argument("--max-frames", type=int, default=400, help="stop feeding after this many frames (400)")
     ap.add_argument("--fused", type=int, default=1, metavar="N", help="with --frames: run until N Fused reports (1)")
+    ap.add_argument("--flash-timing", choices=["typ", "max"], default="max",
+                    help="flash erase/program durations from DS8626, typical or maximum (default max)")
+    ap.add_argument("--flash-bsy-polls", type=int, default=1,
+                    help="reads of FLASH_SR that see BSY after each flash operation (default 1)")
     ap.add_argument("-v", "--verbose", action="store_true", help="print events and first peripheral accesses live")
     ap.add_argument("--trace-mmio", action="store_true", help="print every peripheral access (very verbose)")
     args = ap.parse_args(argv)

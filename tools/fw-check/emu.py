@@ -42,6 +42,12 @@ USART receive errors
     `line_errors(usart, t0, t1, kinds)`: every byte received in [t0, t1) carries FE (or NE/PE); the byte is still
     transferred by the DMA when DMAR=1, otherwise it sets RXNE (ORE when RXNE was set). FE/NE/ORE raise the USART
     interrupt when CR3.EIE is set; the SR-then-DR read clears them (as embassy-stm32 0.6's ring-buffered RX sees it).
+Flash (boot.py "Flash programming and erase")
+    `flash_timing` ("max" | "typ") and `flash_bsy_polls`. The stall of an erase or program moves virtual time on
+    for everything (timers, SysTick, the IWDG, timed stimuli, which are taken after it); an IWDG expiry during an
+    erase resets the chip at the expiry, the erase cut short. Flash survives resets, RAM too. The code in flash is
+    identified again at every reset and VTOR write (boot.ImageSet): the bootloader swaps an image in and jumps to it,
+    the instruction tables, hot blocks and traps follow. fastblock's C code does the common flash accesses.
 
 Time is virtual (instructions at the HCLK of the moment, 1 IPC; boot.py). At idle (WFE with no event) time jumps
 to the next event: an FPGA frame, bus bytes, the end of a DMA transmission, a timer compare/overflow, SysTick, the
@@ -471,16 +477,22 @@ class Sim(boot.Machine):
     last_block = property(lambda self: (self._st.last_addr, self._st.last_size),
                           lambda self, v: (setattr(self._st, "last_addr", v[0] & 0xFFFF_FFFF),
                                            setattr(self._st, "last_size", v[1])))
+    # virtual time and the MMIO count live there too: the C flash path stalls the clock and counts accesses
+    t_base = property(lambda self: self._st.t_base, lambda self, v: setattr(self._st, "t_base", v))
+    hz = property(lambda self: self._st.hz, lambda self, v: setattr(self._st, "hz", v))
+    mmio_count = property(lambda self: self._st.mmio_count, lambda self, v: setattr(self._st, "mmio_count", v))
 
     def __init__(self, img, args, *, lsi_hz: float = 32_000.0, hse_starts: bool = True,
-                 max_resets: int = 10, spin_window: int = 50_000, spin_windows: int = 40):
+                 max_resets: int = 10, spin_window: int = 50_000, spin_windows: int = 40,
+                 flash_timing: str | None = None, flash_bsy_polls: int | None = None):
         self._st = fastblock.State()
         self._st.spin_window = spin_window
-        text_end = max(img.insn_sorted) + 8 if img.insn_sorted else boot.FLASH_BASE
-        self._idx, self._hot, len_hw = fastblock.tables(img, boot.FLASH_BASE, text_end - boot.FLASH_BASE)
-        self._st.idx = ctypes.cast(self._idx, ctypes.POINTER(ctypes.c_uint32))
-        self._st.hot = ctypes.cast(self._hot, ctypes.POINTER(ctypes.c_uint8))
-        self._st.base, self._st.len_hw = boot.FLASH_BASE, len_hw
+        self.ninsn = {}
+        self._build_tables(img)
+        if flash_timing is not None:
+            args.flash_timing = flash_timing
+        if flash_bsy_polls is not None:
+            args.flash_bsy_polls = flash_bsy_polls
         self.lsi_hz = lsi_hz
         self.hse_starts, self.hse_dead = hse_starts, False
         self.max_resets = max_resets
@@ -503,17 +515,40 @@ class Sim(boot.Machine):
         self.rx_feed_log = []
         self.exc_counts = collections.Counter()
         self.c_hook = False
+        self.c_flash = False
         super().__init__(img, args)
+        self._st.f_bsy_polls = self.flash_bsy_polls
+        self._st.f_prog_s = boot.FLASH_PROGRAM_S[self.flash_timing]
         self.boots.append({"t": 0.0, "cause": "power-on", "csr_flags": RESET_FLAGS["power-on"], "insn": 0})
+        self.handler_hits = collections.Counter()
+        self._mark_hot()
+
+    def _build_tables(self, img):
+        """fastblock's instruction-start and hot tables over the flash code of the ELF(s) in flash."""
+        known = getattr(img, "known", [img])
+        ends = [max(im.insn_sorted) + 8 for im in known if im.insn_sorted]
+        text_end = max(ends) if ends else boot.FLASH_BASE
+        self._idx, self._hot, self._len_hw = fastblock.tables(img, boot.FLASH_BASE, text_end - boot.FLASH_BASE)
+        self._st.idx = ctypes.cast(self._idx, ctypes.POINTER(ctypes.c_uint32))
+        self._st.hot = ctypes.cast(self._hot, ctypes.POINTER(ctypes.c_uint8))
+        self._st.base, self._st.len_hw = boot.FLASH_BASE, self._len_hw
+        self.ninsn.clear()
+
+    def _mark_hot(self):
         # reaching the panic/fault handlers is no stop here: they record and reset, which is the point
         self.trap_names, self.trap = self.trap, {}
-        self.handler_hits = collections.Counter()
-        self.ninsn = {}
-        self.hot = set(self.trap_names) | set(self.special) | set(img.task_polls)
+        self.hot = set(self.trap_names) | set(self.special) | set(self.img.task_polls)
         for a in self.hot:
             h = (a - boot.FLASH_BASE) // 2
-            if 0 <= h < len_hw:
+            if 0 <= h < self._len_hw:
                 self._hot[h] = 1
+
+    def _images_changed(self):
+        """Other code in flash (the bootloader swapped an image in and jumps to it): new tables and hooks."""
+        self._build_tables(self.img)
+        self.polled.clear()  # task polls count from when their code is in flash
+        super()._images_changed()
+        self._mark_hot()
 
     def _install_hooks(self):
         """boot.py's hooks, with the block hook registered through a bare ctypes callback (one Python layer less
@@ -561,7 +596,8 @@ class Sim(boot.Machine):
         return self.hse_starts and not self.hse_dead
 
     def _map_peripherals(self):
-        kinds = {"RCC": Rcc, "PWR": boot.Pwr, "FLASH": boot.FlashIf, "USART1": Usart, "USART2": Usart,
+        kinds = {"RCC": Rcc, "PWR": boot.Pwr, "USART1": Usart, "USART2": Usart,
+                 "FLASH": lambda m, n, b: boot.FlashIf(m, n, b, regs=m._st),
                  "USART3": Usart, "USART6": Usart, "DMA1": Dma, "DMA2": Dma, "IWDG": Iwdg,
                  "ADC": boot.Adc, "BKPSRAM": BackupSram}
         old = getattr(self, "blocks", None)
@@ -577,9 +613,7 @@ class Sim(boot.Machine):
         self.ppb = Ppb(self, "PPB", boot.PPB_BASE)
         self.block_starts = sorted(self.blocks)
         if old is None:
-            for base, size in boot.PERIPH_WINDOWS:
-                self.uc.mmio_map(base, size, self._periph_read, base, self._periph_write, base)
-            self.uc.mmio_map(boot.PPB_BASE, boot.PPB_SIZE, self._ppb_read, None, self._ppb_write, None)
+            self._map_windows()
         self._sources = self.irq_sources() if old is not None else []
 
     def block(self, name):
@@ -619,6 +653,116 @@ class Sim(boot.Machine):
     def _ppb_read(self, uc, off, size, _):
         self.mmio_count += 1
         return super()._ppb_read(uc, off, size, _)
+
+    # -- flash: fastblock's C paths when the library is there, else boot.Machine's Python ones ------------------
+    def _map_windows(self):
+        lib = fastblock.library()
+        if lib is None or self.args.trace_mmio:
+            return super()._map_windows()
+        from unicorn.unicorn_py3.unicorn import uclib
+        fl = PERIPHERALS["FLASH"]
+        for base, size in boot.PERIPH_WINDOWS:
+            if base <= fl < base + size:
+                self.uc.mmio_map(base, fl - base, self._periph_read, base, self._periph_write, base)
+                st = ctypes.cast(ctypes.pointer(self._st), ctypes.c_void_p)
+                status = uclib.uc_mmio_map(self.uc._uch, fl, 0x400, ctypes.cast(lib.fw_flash_read, ctypes.c_void_p),
+                                           st, ctypes.cast(lib.fw_flash_write, ctypes.c_void_p), st)
+                if status != 0:
+                    raise UcError(status)
+                rest = fl + 0x400
+                self.uc.mmio_map(rest, base + size - rest, self._periph_read, rest, self._periph_write, rest)
+            else:
+                self.uc.mmio_map(base, size, self._periph_read, base, self._periph_write, base)
+        self.uc.mmio_map(boot.PPB_BASE, boot.PPB_SIZE, self._ppb_read, None, self._ppb_write, None)
+        self.c_flash = True
+
+    def _flash_store_hook(self):
+        self._st.mem = ctypes.cast(self.flash_buf, ctypes.POINTER(ctypes.c_uint8))
+        self._flash_cb_ref = fastblock.FLASH_CB(self._flash_cb)
+        self._st.fcb = self._flash_cb_ref
+        lib = fastblock.library()
+        if lib is None or self.args.trace_mmio:
+            return super()._flash_store_hook()
+        from unicorn.unicorn_py3.unicorn import uclib, uc_hook_h
+        handle = uc_hook_h()
+        status = uclib.uc_hook_add(self.uc._uch, ctypes.byref(handle), unicorn.UC_HOOK_MEM_WRITE,
+                                   ctypes.cast(lib.fw_flash_store, ctypes.c_void_p),
+                                   ctypes.cast(ctypes.pointer(self._st), ctypes.c_void_p),
+                                   ctypes.c_uint64(0), ctypes.c_uint64(boot.FLASH_BASE + boot.FLASH_SIZE - 1))
+        if status != 0:
+            raise UcError(status)
+        self.uc._callbacks[handle.value] = (self._flash_cb_ref, lib)
+
+    def _flash_cb(self, kind, off, size, value):
+        """fastblock's flash paths hand the uncommon accesses to the model (boot.FlashIf) here."""
+        try:
+            if kind == 0:
+                v = super()._flash_read(self.uc, off, size, None)
+            elif kind == 1:
+                super()._flash_write(self.uc, off, size, value, None)
+                v = 0
+                if self.flash.s.f_cr & (boot.FlashIf.EOPIE | boot.FlashIf.ERRIE):
+                    self.next_check = 0
+            else:
+                old = int.from_bytes(self.flash_mem[off:off + size], "little")
+                v = self.flash.program(off, size, value, old)
+            if not self.args.trace_mmio:
+                self._st.f_fast = 1  # the first access is recorded (touched): the C paths take the common ones
+            return v
+        except BaseException as e:  # noqa: BLE001 (re-raised after emu_start)
+            if self.uc._hook_exception is None:
+                self.uc._hook_exception = e
+            self.uc.emu_stop()
+            return value
+
+    def _flash_read(self, uc, off, size, _):
+        self.mmio_count += 1
+        return super()._flash_read(uc, off, size, _)
+
+    def _flash_write(self, uc, off, size, value, _):
+        self.mmio_count += 1
+        super()._flash_write(uc, off, size, value, _)
+        if self.flash.s.f_cr & (boot.FlashIf.EOPIE | boot.FlashIf.ERRIE):
+            self.next_check = 0
+
+    def _on_flash_write(self, uc, access, addr, size, value, _):
+        self.mmio_count += 1  # a program loop is no spin
+        return super()._on_flash_write(uc, access, addr, size, value, _)
+
+    def flash_sync(self):
+        st = self._st
+        if st.fix_pending:
+            st.fix_pending = 0
+            self.flash_mem[st.fix_off:st.fix_off + st.fix_size] = st.fix_val.to_bytes(8, "little")[:st.fix_size]
+        super().flash_sync()
+
+    def flash_summary(self) -> dict:
+        """boot.Machine.flash_summary with the C path's counts added."""
+        out = super().flash_summary()
+        st = self._st
+        out["programs"] += st.f_programs
+        out["bytes_programmed"] += st.f_bytes
+        out["unlocks"] += st.f_unlocks
+        out["program_s"] = round(out["program_s"] + st.f_program_s, 6)
+        return out
+
+    def flash_stall(self, seconds: float, erase: bool = False) -> float:
+        """The CPU stalls for `seconds` (boot.Machine.flash_stall). If the IWDG expires during an erase, the reset
+        comes at its expiry: the time that passed is returned (the erase is cut short). Events that fall due are
+        taken at the next block boundary: the pending check moves closer by the stall (its distance is counted in
+        cycles)."""
+        if erase:
+            t0 = self.now()
+            expiry = self.block("IWDG").expiry()
+            if expiry < t0 + seconds:
+                seconds = max(expiry - t0, 0.0)
+            self.skip_time(seconds)
+            self.next_check = 0
+            return seconds
+        self.skip_time(seconds)
+        st = self._st
+        st.next_check = max(st.next_check - int(seconds * self.hz), 0)
+        return seconds
 
     def _on_wfi(self, uc, addr, size, _):
         pass  # WFI is an idle like WFE without an event (handled where unicorn stops on it)
@@ -891,7 +1035,8 @@ class Sim(boot.Machine):
         uc.reg_write(UC_ARM_REG_IPSR, 0)
         uc.reg_write(UC_ARM_REG_XPSR, 0x0100_0000)
         uc.reg_write(UC_ARM_REG_LR, 0xFFFF_FFFF)
-        vec = struct.unpack("<2I", self.flash_image[:8])
+        self.reidentify()
+        vec = self._reset_vector()
         uc.reg_write(UC_ARM_REG_MSP, vec[0])
         uc.reg_write(UC_ARM_REG_SP, vec[0])
         self.pc_next = vec[1] & ~1
@@ -993,6 +1138,8 @@ class Sim(boot.Machine):
 
     def _on_block(self, uc, addr, size, _):
         """Per-block hook in Python (when no C compiler: fastblock's fw_block does the same in C)."""
+        if self._flash_fix is not None:
+            self.flash_sync()
         st = self._st
         key = (addr << 12) | size
         n = self.ninsn.get(key)
@@ -1092,6 +1239,7 @@ class Sim(boot.Machine):
             uc.emu_start(pc | 1, self.UNTIL, timeout=int(min(1.0, remaining) * 1e6))
         except UcError as e:
             err = e
+        self.flash_sync()
         pc = uc.reg_read(UC_ARM_REG_PC)
         self.pc_next = pc
         if self.stop_kind:
@@ -1195,6 +1343,8 @@ class Sim(boot.Machine):
                 self.raise_fault(f["kind"], f.get("addr"), pc, f.get("access", ""))
                 continue
             if r in ("idle", "spin"):
+                if until is not None and until():
+                    return "until"  # before time jumps to the next event
                 self.process_due()
                 if self.reset_req or self.best_pending() is not None:
                     continue  # something became pending in the last block: taken (WFE wakes up)
@@ -1208,8 +1358,18 @@ class Sim(boot.Machine):
                     self._short_window_if_spin(self.pc_next)
                 continue
 
+    def _reset_vector(self):
+        """SP and PC from the vector table at reset (boot.Machine.boot_vector), VTOR set for a direct boot."""
+        sp, pc, vtor = self.boot_vector()
+        if vtor:
+            self.ppb.regs[Ppb.VTOR] = vtor
+            if not any(e["kind"] == "direct_boot" for e in self.events):
+                self.event("direct_boot", f"0x0800_0000 erased: started from the vector table at 0x{vtor:08x} "
+                                          "(VTOR set there, as a bootloader would)")
+        return sp, pc
+
     def power_on(self):
-        vec = struct.unpack("<2I", self.flash_image[:8])
+        vec = self._reset_vector()
         self.uc.reg_write(UC_ARM_REG_SP, vec[0])
         self.initial_sp, self.reset_pc = vec[0], vec[1]
         self.pc_next = vec[1] & ~1

@@ -20,6 +20,7 @@ import shutil
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
@@ -31,9 +32,17 @@ INJECT_KEY = 0x1A7E_C7ED
 INJECT_SYMBOL = "FDIR_INJECT"
 IWDG_TIMEOUT_S = 8.0  # docs/firmware.md: 8 s at 32 kHz nominal
 FEED_PERIOD_S = 0.25  # the watchdog task's period
-# firmware/src/app.rs DEADLINES_MS (TaskId order: Link, FpgaCtrl, BusRx, BusTx, Storage, Watchdog, Housekeeping, Pps)
-DEADLINE_S = {"Link": 2.0, "FpgaCtrl": 2.0, "BusRx": 2.0, "BusTx": 2.0, "Storage": 3.0, "Watchdog": 1.0,
-              "Housekeeping": 3.0, "Pps": 2.0}
+# firmware/src/app.rs DEADLINES_MS, read from the source (TaskId order: Link, FpgaCtrl, BusRx, BusTx, Storage,
+# Watchdog, Housekeeping, Pps)
+def _deadlines() -> dict:
+    import re
+    src = (Path(__file__).resolve().parents[2] / "firmware/src/app.rs").read_text()
+    ms = re.search(r"pub const DEADLINES_MS: \[u32; TASKS\] = \[([^\]]*)\]", src).group(1)
+    names = ["Link", "FpgaCtrl", "BusRx", "BusTx", "Storage", "Watchdog", "Housekeeping", "Pps"]
+    return {n: int(v.replace("_", "")) / 1000 for n, v in zip(names, ms.split(","), strict=True)}
+
+
+DEADLINE_S = _deadlines()
 PING = 0  # Command::Ping
 
 
@@ -372,7 +381,7 @@ def s_idle_config(ctx) -> Check:
     m, img = r.m, ctx["flight_img"]
     cr = m.rcc.regs.get(emu.Rcc.CR, 0)
     c.that("RCC_CR.CSSON", cr & (1 << 19), f"RCC_CR=0x{cr:08x}")
-    vec = boot.struct.unpack("<98I", m.flash_image[:98 * 4])
+    vec = m.vectors(98)
     default = img.addr_of.get("DefaultHandler")
     enabled = m.ppb.irq_enabled()
     unbound = [boot.IRQ_NAMES.get(n, str(n)) for n in enabled

@@ -114,6 +114,9 @@ fn run(args: &Args) -> Result<(), String> {
         app::Platform::default(),
     );
     app::load_calibration(&mut store, app.pipeline.get_mut());
+    // The update service on RAM models of the DFU slot and the boot state (a SITL has no image of its own: version
+    // 0), checking uploads with the built-in key.
+    let mut update = firmware::sim::flash::updater(firmware::update::UPDATE_PUBLIC_KEY, 0);
     log::info!(
         "sitl: {} bytes of frames ({}), bus {} (CSP v{}), flash {}",
         frames.len(),
@@ -131,7 +134,7 @@ fn run(args: &Args) -> Result<(), String> {
         Mode::Real,
         Duration::MAX,
         select3(
-            node::tasks(&app, board, &mut store),
+            node::tasks(&app, board, &mut store, &mut update),
             feed(board, &frames, args.fast, config.fpga_base_rate_millihz),
             STOP.wait(),
         ),

@@ -17,7 +17,8 @@ use shared::storage::mock::MockFlash;
 
 use super::clock;
 use crate::layout::{
-    CAL_SECTOR_LEN, CAL_SECTORS, ERASE_SECTOR_US, FLASH_WRITE_LEN, PROGRAM_WORD_US,
+    CAL_SECTOR_LEN, CAL_SECTORS, ERASE_IMAGE_SECTOR_US, ERASE_SECTOR_US, ERASE_STATE_SECTOR_US,
+    FLASH_WRITE_LEN, IMAGE_SECTOR_LEN, PROGRAM_WORD_US, STATE_LEN,
 };
 
 /// The calibration sectors as a RAM model.
@@ -121,6 +122,57 @@ impl NorFlash for FileFlash {
     }
 }
 
+/// Worst-case erase time of one F405 sector of `len` bytes at x32, µs ([`crate::layout`]: 16 KiB 0.5 s, 64 KiB
+/// 1.1 s, 128 KiB 2 s; smaller blocks, as the tests' models have, as a 16 KiB sector).
+pub const fn erase_max_us(len: usize) -> u32 {
+    if len > STATE_SECTOR_LEN {
+        ERASE_IMAGE_SECTOR_US[1]
+    } else if len > CAL_SECTOR_LEN {
+        ERASE_STATE_SECTOR_US[1]
+    } else {
+        ERASE_SECTOR_US[1]
+    }
+}
+
+/// One DFU sector (sectors 7–9 of the F405: 128 KiB).
+pub const DFU_SECTOR_LEN: usize = IMAGE_SECTOR_LEN as usize;
+/// The boot state sector (sector 4: 64 KiB).
+pub const STATE_SECTOR_LEN: usize = STATE_LEN as usize;
+/// The DFU slot as a RAM model: three 128 KiB sectors.
+pub type DfuModel = MockFlash<DFU_SECTOR_LEN>;
+/// The boot state partition as a RAM model.
+pub type StateModel = MockFlash<STATE_SECTOR_LEN>;
+/// The update service on the models, stalling as the F405 does.
+pub type SimUpdater = crate::update::Updater<Stalling<DfuModel>, Stalling<StateModel>>;
+/// The update service on erased models (no bootloader report), images checked with `public_key`, the running image
+/// at `running_version`.
+pub fn updater(public_key: [u8; 32], running_version: u32) -> SimUpdater {
+    updater_on(
+        DfuModel::erased(3),
+        StateModel::erased(1),
+        public_key,
+        running_version,
+    )
+}
+
+/// The update service on the given models.
+pub fn updater_on(
+    dfu: DfuModel,
+    state: StateModel,
+    public_key: [u8; 32],
+    running_version: u32,
+) -> SimUpdater {
+    crate::update::Updater::new(
+        Stalling(dfu),
+        Stalling(state),
+        public_key,
+        crate::layout::BOARD_ID,
+        running_version,
+        crate::layout::ACTIVE_LEN,
+        None,
+    )
+}
+
 /// A flash whose erases and programs stall the CPU for the F405's worst-case times ([`crate::layout`]), through
 /// [`crate::sim::clock::stall`]: the host-run tasks then lose frames to a calibration store as the MCU does.
 pub struct Stalling<F>(pub F);
@@ -145,7 +197,7 @@ impl<F: NorFlash> NorFlash for Stalling<F> {
     fn erase(&mut self, from: u32, to: u32) -> Result<(), F::Error> {
         let sectors = u64::from(to.saturating_sub(from)).div_ceil(F::ERASE_SIZE as u64);
         clock::stall(embassy_time::Duration::from_micros(
-            sectors * u64::from(ERASE_SECTOR_US[1]),
+            sectors * u64::from(erase_max_us(F::ERASE_SIZE)),
         ));
         self.0.erase(from, to)
     }

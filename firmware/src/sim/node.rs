@@ -21,6 +21,7 @@ use crate::app::{self, App};
 use crate::layout::{BUS_BAUD, BUS_RX_RING_LEN, FPGA_RX_RING_LEN};
 use crate::log::Loggable;
 use crate::tasks::Edges;
+use crate::update::Updater;
 
 /// The FPGA sending `log` frame by frame at decimation N (a frame every N + 1 ticks of its base clock at
 /// `base_rate_millihz`), frame k at the frame clock's time of its k·(N + 1)-th tick from now (the time the pipeline
@@ -157,12 +158,18 @@ macro_rules! join_all {
     ($first:expr, $($rest:expr),+) => { join($first, join_all!($($rest),+)) };
 }
 
-/// Every firmware loop over `board` and `store`, joined (never returns: drop it to stop the firmware).
-pub async fn tasks<B, F>(app: &App<B>, board: &Board, store: &mut CalStore<F>)
-where
+/// Every firmware loop over `board`, `store` and `update`, joined (never returns: drop it to stop the firmware).
+pub async fn tasks<B, F, D, S>(
+    app: &App<B>,
+    board: &Board,
+    store: &mut CalStore<F>,
+    update: &mut Updater<D, S>,
+) where
     B: core::borrow::BorrowMut<PipelineMemory>,
     F: NorFlash,
     F::Error: Loggable,
+    D: NorFlash,
+    S: NorFlash,
 {
     let edges = Edges {
         fpga_rx: board.fpga_rx.rx(),
@@ -171,6 +178,7 @@ where
         bus_rx: board.bus_rx.rx(),
         bus_tx: board.bus_tx.writer(board.bus_baud),
         store,
+        update,
         watchdog: SimWatchdog(&board.watchdog_feeds),
         led: NoPin,
         pps: SimPps(&board.pps),

@@ -38,6 +38,8 @@ pub struct Sat {
     pub board: Board,
     /// The calibration flash, stalling the CPU as the F405's does.
     pub store: CalStore<Stalling<CalFlashModel>>,
+    /// The update service's DFU slot and boot state (erased models unless a test puts its own).
+    pub update: simflash::SimUpdater,
 }
 
 impl Sat {
@@ -78,6 +80,7 @@ impl Sat {
             app,
             board: Board::with_bus_baud(bus_baud),
             store,
+            update: simflash::updater(firmware::update::UPDATE_PUBLIC_KEY, 0),
         }
     }
 
@@ -94,9 +97,14 @@ impl Sat {
         limit: Duration,
         body: impl AsyncFnOnce(&HostApp, &Board) -> T + Send,
     ) -> T {
-        let Self { app, board, store } = self;
+        let Self {
+            app,
+            board,
+            store,
+            update,
+        } = self;
         let (app, board) = (&*app, &*board);
-        let run = move || select(node::tasks(app, board, store), body(app, board));
+        let run = move || select(node::tasks(app, board, store, update), body(app, board));
         match clock::run_on_mcu_stack(Mode::Virtual, limit, run) {
             Ok(Either::Second(v)) => v,
             Ok(Either::First(())) => panic!("the firmware's tasks ended"),
@@ -199,8 +207,13 @@ impl Ground {
     /// Takes what the satellite sent since the last call and decodes it.
     pub fn receive(&mut self, board: &Board) -> usize {
         let bytes = board.bus_tx.take_all();
-        self.bytes.extend_from_slice(&bytes);
-        let mut input = &bytes[..];
+        self.take(&bytes)
+    }
+
+    /// Decodes `bytes` from the satellite (telemetry and ping replies; update replies are left to the uploader).
+    pub fn take(&mut self, bytes: &[u8]) -> usize {
+        self.bytes.extend_from_slice(bytes);
+        let mut input = bytes;
         let before = self.telemetry.len() + self.pings.len();
         while let Some(frame) = self.kiss.decode(&mut input) {
             let Ok(frame) = frame else {
@@ -211,6 +224,7 @@ impl Ground {
                 Ok(p) if p.header.sport == shared::bus::csp::PORT_PING => {
                     self.pings.push((p.header.src, p.payload.to_vec()))
                 }
+                Ok(p) if p.header.sport == shared::update::PORT_UPDATE => {}
                 Ok(p) if p.header.dport == self.config.telemetry_port => match decode(p.payload) {
                     Ok(t) => self.telemetry.push(t),
                     Err(_) => self.bad += 1,
@@ -304,6 +318,16 @@ pub fn reset_histories(t: &[Telemetry]) -> Vec<shared::telemetry::ResetHistory> 
     t.iter()
         .filter_map(|t| match t {
             Telemetry::Resets(h) => Some(*h),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The update service's reports among `t`, in order.
+pub fn update_reports(t: &[Telemetry]) -> Vec<shared::update::UpdateStatus> {
+    t.iter()
+        .filter_map(|t| match t {
+            Telemetry::Update(u) => Some(*u),
             _ => None,
         })
         .collect()

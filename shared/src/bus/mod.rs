@@ -1,5 +1,5 @@
 //! The CubeSat bus: CSP packets (header version 1 or 2) in KISS frames, carrying the postcard messages of [`crate::telemetry`]
-//! (spec: `docs/bus.md`). [`BusNode`] is the sans-IO endpoint: bus bytes in, command and ping events out;
+//! (spec: `docs/bus.md`). [`BusNode`] is the sans-IO endpoint: bus bytes in, command, ping and update events out;
 //! telemetry payloads in, KISS frames out. The firmware only moves bytes.
 
 pub mod csp;
@@ -61,6 +61,13 @@ pub enum BusEvent<'a> {
         /// Its payload.
         payload: &'a [u8],
     },
+    /// A request to the update service ([`crate::update::PORT_UPDATE`]): answer with [`BusNode::encode_reply`].
+    Update {
+        /// The request's header.
+        header: CspHeader,
+        /// Its payload (an `UpdateEnvelope`).
+        payload: &'a [u8],
+    },
 }
 
 /// Bus statistics: a telemetry type (reported in housekeeping), counted here.
@@ -77,6 +84,7 @@ pub struct BusNode {
 enum Kind {
     Command,
     Ping(CspHeader),
+    Update(CspHeader),
 }
 
 impl BusNode {
@@ -119,6 +127,12 @@ impl BusNode {
                 Ok(p) if p.header.dst == self.config.addr && p.header.dport == PORT_PING => {
                     break Kind::Ping(p.header);
                 }
+                Ok(p)
+                    if p.header.dst == self.config.addr
+                        && p.header.dport == crate::update::PORT_UPDATE =>
+                {
+                    break Kind::Update(p.header);
+                }
                 Ok(_) => self.counters.ignored = self.counters.ignored.wrapping_add(1),
                 Err(_) => self.counters.csp_errors = self.counters.csp_errors.wrapping_add(1),
             }
@@ -130,6 +144,7 @@ impl BusNode {
         Some(match kind {
             Kind::Command => BusEvent::Command(payload),
             Kind::Ping(header) => BusEvent::Ping { header, payload },
+            Kind::Update(header) => BusEvent::Update { header, payload },
         })
     }
 
@@ -162,7 +177,7 @@ impl BusNode {
         self.encode(&header, payload, out)
     }
 
-    /// The reply to `request` (ping echo) as a KISS frame in `out`.
+    /// The reply to `request` (a ping's echo, an update reply) as a KISS frame in `out`.
     pub fn encode_reply(
         &self,
         request: &CspHeader,

@@ -223,7 +223,9 @@ fn one_event(n: &mut BusNode, wire: &[u8]) -> Option<(Option<CspHeader>, Vec<u8>
     let mut input = wire;
     let ev = n.receive(&mut input).map(|e| match e {
         BusEvent::Command(p) => (None, p.to_vec()),
-        BusEvent::Ping { header, payload } => (Some(header), payload.to_vec()),
+        BusEvent::Ping { header, payload } | BusEvent::Update { header, payload } => {
+            (Some(header), payload.to_vec())
+        }
     });
     assert!(input.is_empty() || ev.is_some());
     ev
@@ -249,6 +251,43 @@ fn ping_is_echoed_like_libcsp() {
         let len = n.encode_reply(&header, &payload, &mut out).unwrap();
         assert_eq!(out[..len].to_vec(), hex(reply));
     }
+}
+
+/// A request to port 12 is an update event, answered to its source port like a ping.
+#[test]
+fn update_requests_are_routed_and_answered_to_their_source_port() {
+    let mut n = node();
+    let h = CspHeader {
+        prio: 2,
+        src: 1,
+        dst: 10,
+        dport: crate::update::PORT_UPDATE,
+        sport: 33,
+        flags: 0,
+    };
+    let mut wire = [0u8; MAX_WIRE_FRAME];
+    let len = CspPacket::emit_kiss(&h, CspVersion::V1, &[5, 6], &mut wire).unwrap();
+    let mut input = &wire[..len];
+    let Some(BusEvent::Update { header, payload }) = n.receive(&mut input) else {
+        panic!("not an update event")
+    };
+    assert_eq!((header, payload), (h, &[5u8, 6][..]));
+    let mut out = [0u8; MAX_WIRE_FRAME];
+    let len = n.encode_reply(&h, &[7], &mut out).unwrap();
+    let mut dec = KissDecoder::<MAX_FRAME>::new();
+    let mut input = &out[..len];
+    let frame = dec.decode(&mut input).unwrap().unwrap();
+    let reply = CspPacket::parse(frame, CspVersion::V1).unwrap();
+    assert_eq!(
+        (
+            reply.header.src,
+            reply.header.dst,
+            reply.header.sport,
+            reply.header.dport,
+            reply.payload
+        ),
+        (10, 1, crate::update::PORT_UPDATE, 33, &[7u8][..])
+    );
 }
 
 #[test]

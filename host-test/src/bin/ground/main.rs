@@ -7,6 +7,7 @@ mod compare;
 mod decode;
 mod demo;
 mod diagnose;
+mod fw;
 mod import;
 mod replay;
 mod simulate;
@@ -49,6 +50,12 @@ enum Cmd {
     /// The sim-to-real gap measured directly: two recordings' cluster and typical-sensor Allan deviations compared
     /// per axis and τ (z-scores, the diagnosis's scan verdict), with a plot and JSON.
     Compare(compare::Args),
+    /// In-orbit update: a new Ed25519 signing key pair (PREFIX.pem, PREFIX.pub).
+    FwKeygen(fw::KeygenArgs),
+    /// In-orbit update: the signed image of an application ELF.
+    FwSign(fw::SignArgs),
+    /// In-orbit update: upload a signed image over the bus (resumes where the satellite's DFU slot stops).
+    FwUpload(fw::UploadArgs),
 }
 
 /// `ground … | head` closes the pipe before `ground` is done; the next `println!` then fails and panics (Rust ignores
@@ -83,6 +90,9 @@ fn main() -> ExitCode {
         Cmd::Allan(a) => allan::run(a),
         Cmd::Diagnose(a) => diagnose::run(a),
         Cmd::Compare(a) => compare::run(a),
+        Cmd::FwKeygen(a) => fw::keygen(a),
+        Cmd::FwSign(a) => fw::sign(a),
+        Cmd::FwUpload(a) => fw::upload(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,848 @@
+//! The receiver on the mock flash (128 KiB sectors, power cuts), against images signed here with a throwaway key.
+
+extern crate std;
+
+use super::*;
+use crate::storage::mock::MockFlash;
+use crate::testutil::Rng;
+use ed25519_dalek::{Signer, SigningKey};
+use sha2::{Digest, Sha512};
+
+const SECTOR: usize = 128 * 1024;
+type Dfu = MockFlash<SECTOR>;
+const BOARD: u32 = 0x4F05_1601;
+const ACTIVE_LEN: u32 = 256 * 1024;
+
+fn key() -> SigningKey {
+    SigningKey::from_bytes(&[7; 32])
+}
+
+/// A signed image (header bytes, payload) of `len` pseudo-random payload bytes.
+fn image(
+    len: usize,
+    version: u32,
+    board: u32,
+    signer: &SigningKey,
+) -> ([u8; image::OPEN_LEN], std::vec::Vec<u8>) {
+    let mut rng = Rng::new(len as u64 ^ u64::from(version));
+    let payload: std::vec::Vec<u8> = (0..len).map(|_| rng.next_u64() as u8).collect();
+    let mut h = Header {
+        board_id: board,
+        version,
+        payload_len: len as u32,
+        payload_sha512: Sha512::digest(&payload).into(),
+        signature: [0; 64],
+    };
+    h.signature = signer.sign(&h.signed_bytes()).to_bytes();
+    (h.emit(), payload)
+}
+
+#[derive(Default)]
+struct Boot {
+    state: BootState,
+    fail: bool,
+}
+
+impl BootControl for Boot {
+    fn state(&mut self) -> BootState {
+        self.state
+    }
+    fn mark_updated(&mut self) -> Result<(), BootStateError> {
+        if self.fail {
+            return Err(BootStateError);
+        }
+        self.state = BootState::Swap;
+        Ok(())
+    }
+    fn mark_booted(&mut self) -> Result<(), BootStateError> {
+        self.state = BootState::Boot;
+        Ok(())
+    }
+}
+
+fn ctx(pk: &[u8; 32]) -> Context<'_> {
+    Context {
+        public_key: pk,
+        board_id: BOARD,
+        running_version: 3,
+        max_image_len: ACTIVE_LEN,
+        writable: Ok(()),
+    }
+}
+
+fn chunk(payload: &[u8], offset: usize, n: usize) -> UpdateRequest {
+    let end = (offset + n).min(payload.len());
+    let mut data: Vec<u8, CHUNK_MAX> = Vec::from_slice(&payload[offset..end]).unwrap();
+    while !data.len().is_multiple_of(4) {
+        data.push(0xFF).unwrap();
+    }
+    UpdateRequest::Chunk {
+        offset: offset as u32,
+        crc32c: crc32c(&data),
+        data,
+    }
+}
+
+/// Opens, erases and sends everything in order; returns the receiver.
+fn upload(
+    rx: &mut Receiver,
+    dfu: &mut Dfu,
+    boot: &mut Boot,
+    header: &[u8; image::OPEN_LEN],
+    payload: &[u8],
+) {
+    let pk = key().verifying_key().to_bytes();
+    let c = ctx(&pk);
+    let UpdateReply::Opened {
+        sectors,
+        erased,
+        mut next_offset,
+    } = rx.handle(
+        &UpdateRequest::Open {
+            header: *header,
+            restart: false,
+        },
+        dfu,
+        &c,
+        boot,
+    )
+    else {
+        panic!("not opened")
+    };
+    for s in erased..sectors {
+        assert_eq!(
+            rx.handle(&UpdateRequest::Erase { sector: s }, dfu, &c, boot),
+            UpdateReply::Erased { sector: s }
+        );
+    }
+    while (next_offset as usize) < payload.len() {
+        match rx.handle(
+            &chunk(payload, next_offset as usize, CHUNK_MAX),
+            dfu,
+            &c,
+            boot,
+        ) {
+            UpdateReply::Ack { next_offset: n } => next_offset = n,
+            other => panic!("{other:?}"),
+        }
+    }
+}
+
+#[test]
+fn upload_verify_commit() {
+    let k = key();
+    let pk = k.verifying_key().to_bytes();
+    let (header, payload) = image(200_001, 4, BOARD, &k);
+    let (mut dfu, mut boot, mut rx) = (Dfu::erased(3), Boot::default(), Receiver::default());
+    upload(&mut rx, &mut dfu, &mut boot, &header, &payload);
+    assert_eq!(&dfu.mem[512..512 + payload.len()], &payload[..]);
+    assert_eq!(&dfu.mem[..image::OPEN_LEN], &header[..]);
+    let c = ctx(&pk);
+    assert_eq!(
+        rx.handle(&UpdateRequest::Verify, &mut dfu, &c, &mut boot),
+        UpdateReply::Verified
+    );
+    assert_eq!(
+        rx.handle(&UpdateRequest::Commit, &mut dfu, &c, &mut boot),
+        UpdateReply::Committed
+    );
+    assert_eq!(boot.state, BootState::Swap);
+    assert_eq!(rx.last(), UpdateOutcome::Committed(4));
+    let st = rx.status(&mut dfu, &c, &mut boot);
+    assert_eq!(
+        (st.dfu, st.dfu_version, st.received, st.payload_len),
+        (DfuState::Committed, 4, 200_004, 200_001)
+    );
+    assert_eq!(
+        st.counters.erases, 2,
+        "200 001 + 512 bytes span two 128 KiB sectors"
+    );
+    // Abort cancels a swap committed since boot.
+    assert_eq!(
+        rx.handle(&UpdateRequest::Abort, &mut dfu, &c, &mut boot),
+        UpdateReply::Aborted
+    );
+    assert_eq!(boot.state, BootState::Boot);
+}
+
+#[test]
+fn refusals_are_typed_and_change_nothing() {
+    let k = key();
+    let pk = k.verifying_key().to_bytes();
+    let c = ctx(&pk);
+    let (mut dfu, mut boot, mut rx) = (Dfu::erased(3), Boot::default(), Receiver::default());
+    let open = |h: [u8; image::OPEN_LEN]| UpdateRequest::Open {
+        header: h,
+        restart: false,
+    };
+    let refused = |e| UpdateReply::Refused(UpdateError::Image(e));
+    // Another key, another board, an older version, too large, not a header.
+    let other = SigningKey::from_bytes(&[8; 32]);
+    assert_eq!(
+        rx.handle(
+            &open(image(1000, 4, BOARD, &other).0),
+            &mut dfu,
+            &c,
+            &mut boot
+        ),
+        refused(ImageError::Signature)
+    );
+    assert_eq!(
+        rx.handle(
+            &open(image(1000, 4, BOARD + 1, &k).0),
+            &mut dfu,
+            &c,
+            &mut boot
+        ),
+        refused(ImageError::Board)
+    );
+    assert_eq!(
+        rx.handle(&open(image(1000, 3, BOARD, &k).0), &mut dfu, &c, &mut boot),
+        refused(ImageError::Rollback)
+    );
+    let big = ACTIVE_LEN as usize - 511;
+    assert_eq!(
+        rx.handle(&open(image(big, 4, BOARD, &k).0), &mut dfu, &c, &mut boot),
+        refused(ImageError::TooLarge)
+    );
+    let mut h = image(1000, 4, BOARD, &k).0;
+    h[0] ^= 1;
+    assert_eq!(
+        rx.handle(&open(h), &mut dfu, &c, &mut boot),
+        refused(ImageError::Magic)
+    );
+    // A flipped bit anywhere in the signed bytes breaks the signature.
+    let mut h = image(1000, 4, BOARD, &k).0;
+    h[40] ^= 0x10;
+    assert_eq!(
+        rx.handle(&open(h), &mut dfu, &c, &mut boot),
+        refused(ImageError::Signature)
+    );
+    assert!(dfu.mem.iter().all(|&b| b == 0xFF), "nothing written");
+    assert_eq!(
+        rx.handle(&UpdateRequest::Verify, &mut dfu, &c, &mut boot),
+        UpdateReply::Refused(UpdateError::NotOpen)
+    );
+    assert_eq!(rx.status(&mut dfu, &c, &mut boot).counters.refused, 7);
+
+    // Not idle: no erase. Out of order erase. Truncated upload: no verify, no commit.
+    let (header, payload) = image(5000, 4, BOARD, &k);
+    assert!(matches!(
+        rx.handle(&open(header), &mut dfu, &c, &mut boot),
+        UpdateReply::Opened {
+            sectors: 1,
+            erased: 0,
+            next_offset: 0
+        }
+    ));
+    let busy = Context {
+        writable: Err(UpdateError::NotIdle),
+        ..c
+    };
+    assert_eq!(
+        rx.handle(
+            &UpdateRequest::Erase { sector: 0 },
+            &mut dfu,
+            &busy,
+            &mut boot
+        ),
+        UpdateReply::Refused(UpdateError::NotIdle)
+    );
+    assert_eq!(
+        rx.handle(&UpdateRequest::Erase { sector: 1 }, &mut dfu, &c, &mut boot),
+        UpdateReply::Refused(UpdateError::SectorOrder { expected: 0 })
+    );
+    assert_eq!(
+        rx.handle(&chunk(&payload, 0, 64), &mut dfu, &c, &mut boot),
+        UpdateReply::Refused(UpdateError::NotErased)
+    );
+    assert_eq!(
+        rx.handle(&UpdateRequest::Erase { sector: 0 }, &mut dfu, &c, &mut boot),
+        UpdateReply::Erased { sector: 0 }
+    );
+    assert_eq!(
+        rx.handle(&chunk(&payload, 0, 64), &mut dfu, &c, &mut boot),
+        UpdateReply::Ack { next_offset: 64 }
+    );
+    assert_eq!(
+        rx.handle(&UpdateRequest::Commit, &mut dfu, &c, &mut boot),
+        UpdateReply::Refused(UpdateError::Incomplete { next_offset: 64 })
+    );
+    // Bad CRC, misaligned, past the end.
+    let UpdateRequest::Chunk { offset, data, .. } = chunk(&payload, 64, 64) else {
+        panic!("a chunk")
+    };
+    assert_eq!(
+        rx.handle(
+            &UpdateRequest::Chunk {
+                offset,
+                crc32c: 0,
+                data
+            },
+            &mut dfu,
+            &c,
+            &mut boot
+        ),
+        UpdateReply::Refused(UpdateError::Crc)
+    );
+    assert_eq!(
+        rx.handle(&chunk(&payload, 66, 64), &mut dfu, &c, &mut boot),
+        UpdateReply::Refused(UpdateError::Range)
+    );
+    assert_eq!(
+        rx.handle(&chunk(&payload, 128, 64), &mut dfu, &c, &mut boot),
+        UpdateReply::Refused(UpdateError::OutOfOrder { expected: 64 })
+    );
+    assert_eq!(boot.state, BootState::Boot);
+}
+
+#[test]
+fn corrupted_payload_fails_the_hash() {
+    let k = key();
+    let pk = k.verifying_key().to_bytes();
+    let c = ctx(&pk);
+    let (header, mut payload) = image(3000, 4, BOARD, &k);
+    payload[1234] ^= 0x01; // sent with a good chunk CRC: corrupted before it was signed-for bytes left the ground
+    let (mut dfu, mut boot, mut rx) = (Dfu::erased(3), Boot::default(), Receiver::default());
+    upload(&mut rx, &mut dfu, &mut boot, &header, &payload);
+    assert_eq!(
+        rx.handle(&UpdateRequest::Commit, &mut dfu, &c, &mut boot),
+        UpdateReply::Refused(UpdateError::Image(ImageError::Hash))
+    );
+    assert_eq!(rx.last(), UpdateOutcome::Refused(ImageError::Hash));
+    assert_eq!(boot.state, BootState::Boot, "nothing committed");
+}
+
+/// A power cut at every flash operation of an upload: after each, a new receiver (a reset) resumes from what the
+/// slot holds, and the image ends verified, byte for byte.
+#[test]
+fn resumes_after_a_reset_at_every_flash_operation() {
+    let k = key();
+    let pk = k.verifying_key().to_bytes();
+    let c = ctx(&pk);
+    let (header, payload) = image(150_000, 9, BOARD, &k);
+    // Operations of a clean upload.
+    let mut dfu = Dfu::erased(3);
+    upload(
+        &mut Receiver::default(),
+        &mut dfu,
+        &mut Boot::default(),
+        &header,
+        &payload,
+    );
+    let total_ops = dfu.ops;
+    let mut cut_at = 0;
+    let step = (total_ops / 60).max(1); // 60 cut points spread over the upload, and the first few operations
+    while cut_at < total_ops {
+        let mut dfu = Dfu::erased(3);
+        dfu.budget = Some(cut_at);
+        let mut boot = Boot::default();
+        let mut rx = Receiver::default();
+        // Runs until the power cut makes a request fail.
+        let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            upload(&mut rx, &mut dfu, &mut boot, &header, &payload)
+        }));
+        dfu.budget = None;
+        let mut rx = Receiver::default();
+        upload(&mut rx, &mut dfu, &mut boot, &header, &payload);
+        assert_eq!(
+            rx.handle(&UpdateRequest::Verify, &mut dfu, &c, &mut boot),
+            UpdateReply::Verified,
+            "cut at {cut_at}"
+        );
+        cut_at += if cut_at < 8 { 1 } else { step };
+    }
+}
+
+#[test]
+fn resume_reports_what_arrived() {
+    let k = key();
+    let pk = k.verifying_key().to_bytes();
+    let c = ctx(&pk);
+    let (header, payload) = image(140_000, 5, BOARD, &k);
+    let (mut dfu, mut boot, mut rx) = (Dfu::erased(3), Boot::default(), Receiver::default());
+    let open = UpdateRequest::Open {
+        header,
+        restart: false,
+    };
+    rx.handle(&open, &mut dfu, &c, &mut boot);
+    rx.handle(&UpdateRequest::Erase { sector: 0 }, &mut dfu, &c, &mut boot);
+    // A reset after one erase: one sector erased, no payload.
+    let mut rx = Receiver::default();
+    assert_eq!(
+        rx.handle(&open, &mut dfu, &c, &mut boot),
+        UpdateReply::Opened {
+            sectors: 2,
+            erased: 1,
+            next_offset: 0
+        }
+    );
+    assert_eq!(
+        rx.handle(&UpdateRequest::Erase { sector: 0 }, &mut dfu, &c, &mut boot),
+        UpdateReply::Erased { sector: 0 },
+        "duplicate"
+    );
+    rx.handle(&UpdateRequest::Erase { sector: 1 }, &mut dfu, &c, &mut boot);
+    for off in (0..1000).step_by(100) {
+        rx.handle(&chunk(&payload, off, 100), &mut dfu, &c, &mut boot);
+    }
+    // A duplicate and a resend overlapping new bytes.
+    assert_eq!(
+        rx.handle(&chunk(&payload, 500, 100), &mut dfu, &c, &mut boot),
+        UpdateReply::Ack { next_offset: 1000 }
+    );
+    assert_eq!(
+        rx.handle(&chunk(&payload, 900, 192), &mut dfu, &c, &mut boot),
+        UpdateReply::Ack { next_offset: 1092 }
+    );
+    let mut wrong = payload.clone();
+    wrong[950] ^= 1;
+    assert_eq!(
+        rx.handle(&chunk(&wrong, 900, 100), &mut dfu, &c, &mut boot),
+        UpdateReply::Refused(UpdateError::Mismatch)
+    );
+    // A reset: the slot says 1092 bytes arrived (the payload's bytes there are not all 0xFF).
+    let mut rx = Receiver::default();
+    assert_eq!(
+        rx.handle(&open, &mut dfu, &c, &mut boot),
+        UpdateReply::Opened {
+            sectors: 2,
+            erased: 2,
+            next_offset: 1092
+        }
+    );
+    // Restart forgets it.
+    assert_eq!(
+        rx.handle(
+            &UpdateRequest::Open {
+                header,
+                restart: true
+            },
+            &mut dfu,
+            &c,
+            &mut boot
+        ),
+        UpdateReply::Opened {
+            sectors: 2,
+            erased: 0,
+            next_offset: 0
+        }
+    );
+}
+
+/// A lossy link: each request and each reply is lost, duplicated, corrupted or delayed behind the next at random;
+/// a go-back-N sender with a window of 4 still gets the image across, verified.
+#[test]
+fn go_back_n_over_a_lossy_link() {
+    let k = key();
+    let pk = k.verifying_key().to_bytes();
+    let c = ctx(&pk);
+    let (header, payload) = image(20_000, 6, BOARD, &k);
+    let (mut dfu, mut boot, mut rx) = (Dfu::erased(3), Boot::default(), Receiver::default());
+    rx.handle(
+        &UpdateRequest::Open {
+            header,
+            restart: false,
+        },
+        &mut dfu,
+        &c,
+        &mut boot,
+    );
+    rx.handle(&UpdateRequest::Erase { sector: 0 }, &mut dfu, &c, &mut boot);
+    let mut rng = Rng::new(1);
+    let mut acked = 0usize;
+    let mut rounds = 0;
+    let mut late: std::vec::Vec<UpdateRequest> = std::vec::Vec::new();
+    while acked < payload.len() {
+        rounds += 1;
+        assert!(rounds < 10_000);
+        let mut window: std::vec::Vec<UpdateRequest> = (0..4)
+            .map(|i| acked + i * 128)
+            .filter(|&o| o < payload.len())
+            .map(|o| chunk(&payload, o, 128))
+            .collect();
+        window.append(&mut late);
+        for req in window {
+            let mut req = req;
+            match rng.next_u64() % 8 {
+                0 => continue, // lost
+                1 => {
+                    late.push(req);
+                    continue;
+                } // reordered: arrives in the next round
+                2 => {
+                    if let UpdateRequest::Chunk { data, .. } = &mut req {
+                        data[3] ^= 0x40; // corrupted (CRC no longer matches)
+                    }
+                }
+                3 => {
+                    rx.handle(&req, &mut dfu, &c, &mut boot);
+                } // duplicated
+                _ => {}
+            }
+            let reply = rx.handle(&req, &mut dfu, &c, &mut boot);
+            if rng.next_u64().is_multiple_of(8) {
+                continue; // reply lost
+            }
+            if let UpdateReply::Ack { next_offset } = reply {
+                acked = acked.max(next_offset as usize);
+            }
+        }
+    }
+    assert_eq!(
+        rx.handle(&UpdateRequest::Verify, &mut dfu, &c, &mut boot),
+        UpdateReply::Verified
+    );
+    let n = rx.status(&mut dfu, &c, &mut boot).counters;
+    assert!(
+        n.crc_errors > 0 && n.out_of_order > 0 && n.duplicates > 0,
+        "{n:?}"
+    );
+}
+
+#[test]
+fn bytes_in_bytes_out() {
+    let k = key();
+    let pk = k.verifying_key().to_bytes();
+    let c = ctx(&pk);
+    let (mut dfu, mut boot, mut rx) = (Dfu::erased(3), Boot::default(), Receiver::default());
+    let mut out = [0u8; 256];
+    let req = postcard::to_allocvec(&UpdateEnvelope {
+        tag: 77,
+        request: UpdateRequest::Status,
+    })
+    .unwrap();
+    let n = rx
+        .handle_bytes(&req, &mut dfu, &c, &mut boot, &mut out)
+        .unwrap();
+    let resp: UpdateResponse = postcard::from_bytes(&out[..n]).unwrap();
+    assert_eq!(resp.tag, 77);
+    assert!(matches!(
+        resp.reply,
+        UpdateReply::Status(UpdateStatus {
+            running_version: 3,
+            dfu: DfuState::Idle,
+            ..
+        })
+    ));
+    let n = rx
+        .handle_bytes(&[0xFF, 0xFF, 0xFF, 9], &mut dfu, &c, &mut boot, &mut out)
+        .unwrap();
+    let resp: UpdateResponse = postcard::from_bytes(&out[..n]).unwrap();
+    assert_eq!(resp.reply, UpdateReply::Refused(UpdateError::Decode));
+    // The largest request fits the bus's payload.
+    let (header, payload) = image(1000, 4, BOARD, &k);
+    for r in [
+        chunk(&payload, 0, CHUNK_MAX),
+        UpdateRequest::Open {
+            header,
+            restart: true,
+        },
+    ] {
+        let bytes = postcard::to_allocvec(&UpdateEnvelope {
+            tag: u16::MAX,
+            request: r,
+        })
+        .unwrap();
+        assert!(bytes.len() <= crate::bus::MAX_PAYLOAD, "{}", bytes.len());
+    }
+}
+
+// ---- The bootloader's decision (`boot::prepare`) on models of ACTIVE, DFU and the state partition ----
+
+mod boot_sequence {
+    use super::*;
+    use crate::update::boot;
+    use core::cell::Cell;
+    use embassy_boot::BlockingFirmwareState;
+    use embedded_storage::nor_flash::{ErrorType, ReadNorFlash};
+    use std::rc::Rc;
+
+    const STATE_SECTOR: usize = 64 * 1024;
+
+    /// A flash that shares one power-cut budget (in erase and write calls) with the others of a test: the cut
+    /// call fails, an erase leaving its block half garbage, a write of n words having written n/2.
+    struct Cut<const E: usize> {
+        inner: MockFlash<E>,
+        left: Rc<Cell<Option<usize>>>,
+        calls: Rc<Cell<usize>>,
+    }
+
+    impl<const E: usize> Cut<E> {
+        fn before(&mut self, words: usize) {
+            self.calls.set(self.calls.get() + 1);
+            match self.left.get() {
+                Some(0) => self.inner.budget = Some(self.inner.ops),
+                Some(1) => {
+                    self.left.set(Some(0));
+                    self.inner.budget = Some(self.inner.ops + words / 2);
+                }
+                Some(n) => self.left.set(Some(n - 1)),
+                None => {}
+            }
+        }
+    }
+
+    impl<const E: usize> ErrorType for Cut<E> {
+        type Error = crate::storage::mock::MockError;
+    }
+
+    impl<const E: usize> ReadNorFlash for Cut<E> {
+        const READ_SIZE: usize = 1;
+        fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+            self.inner.read(offset, bytes)
+        }
+        fn capacity(&self) -> usize {
+            self.inner.capacity()
+        }
+    }
+
+    impl<const E: usize> NorFlash for Cut<E> {
+        const WRITE_SIZE: usize = 4;
+        const ERASE_SIZE: usize = E;
+        fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+            self.before(0);
+            self.inner.erase(from, to)
+        }
+        fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+            self.before(bytes.len() / 4);
+            self.inner.write(offset, bytes)
+        }
+    }
+
+    /// The three partitions, sharing a budget.
+    struct Board {
+        active: Cut<SECTOR>,
+        dfu: Cut<SECTOR>,
+        state: Cut<STATE_SECTOR>,
+        left: Rc<Cell<Option<usize>>>,
+        calls: Rc<Cell<usize>>,
+    }
+
+    impl Board {
+        fn new(active: Dfu, dfu: Dfu, state: MockFlash<STATE_SECTOR>) -> Self {
+            let (left, calls) = (Rc::new(Cell::new(None)), Rc::new(Cell::new(0)));
+            Self {
+                active: Cut {
+                    inner: active,
+                    left: left.clone(),
+                    calls: calls.clone(),
+                },
+                dfu: Cut {
+                    inner: dfu,
+                    left: left.clone(),
+                    calls: calls.clone(),
+                },
+                state: Cut {
+                    inner: state,
+                    left: left.clone(),
+                    calls: calls.clone(),
+                },
+                left,
+                calls,
+            }
+        }
+
+        fn copy(&self) -> Self {
+            Self::new(
+                self.active.inner.clone(),
+                self.dfu.inner.clone(),
+                self.state.inner.clone(),
+            )
+        }
+
+        /// One reset: the bootloader's decision, with the power cut after `cut` flash calls (`None`: no cut).
+        fn boot(
+            &mut self,
+            cut: Option<usize>,
+            pk: &[u8; 32],
+        ) -> Result<BootReport, boot::BootFlashError> {
+            self.left.set(cut);
+            for f in [&mut self.active.inner, &mut self.dfu.inner] {
+                f.budget = None;
+            }
+            self.state.inner.budget = None;
+            let mut aligned = [0u8; 4096];
+            let mut scratch = [0u8; 4];
+            boot::prepare(
+                &mut self.active,
+                &mut self.dfu,
+                &mut self.state,
+                &mut aligned,
+                &mut scratch,
+                pk,
+                BOARD,
+            )
+        }
+
+        fn boot_state(&mut self) -> embassy_boot::State {
+            let mut scratch = [0u8; 4];
+            BlockingFirmwareState::new(&mut self.state.inner, &mut scratch)
+                .get_state()
+                .unwrap()
+        }
+
+        fn mark(&mut self, updated: bool) {
+            let mut scratch = [0u8; 4];
+            let mut s = BlockingFirmwareState::new(&mut self.state.inner, &mut scratch);
+            if updated {
+                s.mark_updated().unwrap()
+            } else {
+                s.mark_booted().unwrap()
+            }
+        }
+    }
+
+    /// A slot image: header (512 B, 0xFF after the signature) and payload.
+    fn slot_bytes(header: &[u8; image::OPEN_LEN], payload: &[u8]) -> std::vec::Vec<u8> {
+        let mut b = header.to_vec();
+        b.resize(image::HEADER_LEN, 0xFF);
+        b.extend_from_slice(payload);
+        b
+    }
+
+    /// ACTIVE with version 3, DFU with a signed version 4 uploaded through the receiver and committed.
+    fn committed(corrupt: bool) -> (Board, std::vec::Vec<u8>, std::vec::Vec<u8>, [u8; 32]) {
+        let k = key();
+        let pk = k.verifying_key().to_bytes();
+        let (old_h, old_p) = image(180_000, 3, BOARD, &k);
+        let (new_h, mut new_p) = image(150_000, 4, BOARD, &k);
+        let old = slot_bytes(&old_h, &old_p);
+        let mut active = Dfu::erased(2);
+        active.mem[..old.len()].copy_from_slice(&old);
+        let (mut dfu, mut b, mut rx) = (Dfu::erased(3), Boot::default(), Receiver::default());
+        if corrupt {
+            new_p[77_777] ^= 0x80;
+        }
+        upload(&mut rx, &mut dfu, &mut b, &new_h, &new_p);
+        let mut board = Board::new(active, dfu, MockFlash::erased(1));
+        board.mark(true);
+        let new = slot_bytes(&new_h, &new_p);
+        (board, old, new, pk)
+    }
+
+    fn active_holds(board: &Board, bytes: &[u8]) -> bool {
+        board.active.inner.mem[..image::OPEN_LEN] == bytes[..image::OPEN_LEN]
+            && board.active.inner.mem[image::HEADER_LEN..bytes.len()] == bytes[image::HEADER_LEN..]
+    }
+
+    /// Boots until the decision completes (each failed attempt is a reset); returns the report.
+    fn boot_through(board: &mut Board, pk: &[u8; 32]) -> BootReport {
+        for _ in 0..3 {
+            if let Ok(r) = board.boot(None, pk) {
+                return r;
+            }
+        }
+        panic!("the boot never completed")
+    }
+
+    #[test]
+    fn swap_then_revert_unless_confirmed() {
+        let (mut board, old, new, pk) = committed(false);
+        let r = board.boot(None, &pk).unwrap();
+        assert_eq!(
+            r,
+            BootReport {
+                action: BootAction::Swapped,
+                refusal: 0,
+                active_version: 4,
+                dfu_version: 4
+            }
+        );
+        assert!(active_holds(&board, &new));
+        assert_eq!(
+            board.boot_state(),
+            embassy_boot::State::Swap,
+            "a trial until it confirms"
+        );
+        // Not confirmed: the next reset reverts.
+        let mut unconfirmed = board.copy();
+        let r = unconfirmed.boot(None, &pk).unwrap();
+        assert_eq!(
+            (r.action, r.active_version, r.dfu_version),
+            (BootAction::Reverted, 3, 4)
+        );
+        assert!(active_holds(&unconfirmed, &old));
+        assert_eq!(
+            unconfirmed.boot(None, &pk).unwrap().action,
+            BootAction::Booted
+        );
+        // Confirmed: it stays.
+        board.mark(false);
+        assert_eq!(board.boot(None, &pk).unwrap().action, BootAction::Booted);
+        assert!(active_holds(&board, &new));
+    }
+
+    /// A power cut at every flash call of the swap, then of the revert: each boot ends with the old or the new image
+    /// whole in ACTIVE, never neither, and the interrupted operation completes at the next reset.
+    #[test]
+    fn power_cut_at_every_flash_call_keeps_old_or_new() {
+        let (board, old, new, pk) = committed(false);
+        let mut clean = board.copy();
+        clean.boot(None, &pk).unwrap();
+        let swap_calls = clean.calls.get();
+        assert!(swap_calls > 100, "{swap_calls} calls");
+        for cut in 0..swap_calls {
+            let mut b = board.copy();
+            let first = b.boot(Some(cut), &pk);
+            assert!(first.is_err(), "cut {cut} of {swap_calls} did not cut");
+            let r = boot_through(&mut b, &pk);
+            assert_eq!(r.action, BootAction::Swapped, "cut {cut}");
+            assert!(
+                active_holds(&b, &new),
+                "cut {cut}: ACTIVE is not the new image"
+            );
+        }
+        let mut reverting = clean.copy();
+        reverting.calls.set(0);
+        reverting.boot(None, &pk).unwrap();
+        let revert_calls = reverting.calls.get();
+        std::println!(
+            "power cuts: {swap_calls} flash calls of the swap, {revert_calls} of the revert, each cut once"
+        );
+        for cut in 0..revert_calls {
+            let mut b = clean.copy();
+            assert!(b.boot(Some(cut), &pk).is_err());
+            let r = boot_through(&mut b, &pk);
+            assert!(
+                matches!(r.action, BootAction::Reverted | BootAction::Booted),
+                "cut {cut}: {r:?}"
+            );
+            assert!(
+                active_holds(&b, &old),
+                "cut {cut}: ACTIVE is not the old image"
+            );
+        }
+    }
+
+    #[test]
+    fn a_corrupted_or_older_image_is_refused_and_active_boots_unchanged() {
+        let (mut board, old, _, pk) = committed(true);
+        let r = board.boot(None, &pk).unwrap();
+        assert_eq!(
+            r,
+            BootReport {
+                action: BootAction::Refused,
+                refusal: ImageError::Hash.code(),
+                active_version: 3,
+                dfu_version: 4
+            }
+        );
+        assert!(active_holds(&board, &old));
+        assert_eq!(
+            board.boot_state(),
+            embassy_boot::State::Boot,
+            "the request is cancelled"
+        );
+        assert_eq!(board.boot(None, &pk).unwrap().action, BootAction::Booted);
+        // Another key: refused before anything moves.
+        let (mut board, old, _, _) = committed(false);
+        let other = SigningKey::from_bytes(&[9; 32]).verifying_key().to_bytes();
+        let r = board.boot(None, &other).unwrap();
+        assert_eq!(
+            (r.action, r.refusal),
+            (BootAction::Refused, ImageError::Signature.code())
+        );
+        assert!(active_holds(&board, &old));
+    }
+}
