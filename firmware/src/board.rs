@@ -9,7 +9,7 @@
 //! | status LED          | GPIO       | PC13             | open drain, 2 MHz: sinks the LED's current (below) |
 //! | watchdog            | IWDG       | -                | LSI ≈ 32 kHz, 8 s, started before anything else |
 //! | calibration slots   | FLASH      | -                | sectors 2 (A) and 3 (B), 0x0800_8000, x32 erase |
-//! | time driver         | TIM5       | -                | embassy `time-driver-tim5`, 16 kHz tick   |
+//! | time driver         | TIM5       | -                | embassy `time-driver-tim5`, 8 kHz tick    |
 //! | PPS in (optional)   | TIM2 CH1   | PA15 (AF1)       | input capture, rising edge, 32-bit counter at 1 MHz |
 //! | core clock          | RCC        | -                | HCLK 168 MHz streaming, 84 MHz in Idle (`CoreClock`) |
 //!
@@ -20,8 +20,8 @@
 //!
 //! The flash accelerator (prefetch, instruction and data caches), which `embassy_stm32::init` leaves off (its RCC
 //! init writes FLASH_ACR with the wait states only), is turned on here. Time: embassy's TIM5 driver counts 16-bit
-//! periods of 2¹⁵ ticks and loses time when interrupts stay off for more than that; at 16 kHz that is 2.05 s, four
-//! times the longest flash stall (a 16 KiB erase, ≤ 0.5 s; `docs/storage.md`), where 1 MHz would allow 33 ms.
+//! periods of 2¹⁵ ticks and loses time when interrupts stay off for more than that; at 8 kHz that is 4.1 s, twice
+//! the longest flash stall (a DFU sector erase, ≤ 2 s; `docs/update.md`), where 1 MHz would allow 33 ms.
 //!
 //! Clocks: 8 MHz HSE → PLL (M 4, N 168, P 2, Q 7): SYSCLK = HCLK = 168 MHz, APB1 42 MHz, APB2 84 MHz. If the HSE
 //! does not start within ~100 ms the same 168 MHz comes from the 16 MHz HSI (±1 % over temperature) and the boot log
@@ -411,8 +411,8 @@ pub struct Board {
 }
 
 /// The PPS input: TIM2 channel 1 captures the counter (1 MHz, 32 bits) at each rising edge on PA15; the edge's time
-/// on embassy's clock is "now" less the counter's count since the capture, read together (the 16 kHz tick limits
-/// it to 62.5 µs, far below a frame's read delay). An unconnected pin (pulled down) gives no edge.
+/// on embassy's clock is "now" less the counter's count since the capture, read together (the 8 kHz tick limits
+/// it to 125 µs, far below a frame's read delay). An unconnected pin (pulled down) gives no edge.
 pub struct Pps(InputCapture<'static, peripherals::TIM2>);
 
 impl firmware::app::PpsInput for Pps {

@@ -2027,6 +2027,11 @@ class Machine:
         """Every translation block: count, sample, and check SP after each block that may have moved it down."""
         if self._flash_fix is not None:
             self.flash_sync()
+        if self.insns >= self._slice_insn:  # the host-time slice (see _emulate)
+            self._slice_insn = self.insns + 100_000
+            if time.monotonic() >= self.slice_end:
+                self.uc.emu_stop()  # before this block runs: it runs, and is counted, on resume
+                return
         info = self.binfo.get(addr)
         if info is None or info[0] != size:
             info = self.binfo[addr] = (size, *self.img.block_info(addr, size))
@@ -2056,6 +2061,7 @@ class Machine:
 
     prev_block = (0, 0)
     check_sp = True
+    slice_end, _slice_insn = float("inf"), 0
 
     def _overflow(self, sp, addr, culprit_block):
         img = self.img
@@ -2171,8 +2177,11 @@ class Machine:
             self.prev_hist, self.hist = self.hist, collections.Counter()
             self.prev_mmio, self.mmio_reads = self.mmio_reads, collections.Counter()
             err = None
+            # the slice ends at a block's start (_on_block); unicorn's timeout is only a backstop: it stops inside an
+            # instruction, which then runs again on resume with its MMIO or flash side effects repeated
+            self.slice_end, self._slice_insn = time.monotonic() + min(slice_s, remaining), 0
             try:
-                uc.emu_start(pc | 1, self.UNTIL, timeout=int(min(slice_s, remaining) * 1e6))
+                uc.emu_start(pc | 1, self.UNTIL, timeout=int((remaining + 5.0) * 1e6))
             except UcError as e:
                 err = e
             self.flash_sync()

@@ -53,7 +53,9 @@ Time is virtual (instructions at the HCLK of the moment, 1 IPC; boot.py). At idl
 to the next event: an FPGA frame, bus bytes, the end of a DMA transmission, a timer compare/overflow, SysTick, the
 IWDG expiry, a clock failure. A loop of at most 6 blocks that touches no peripheral for 2M instructions, and then
 again after each interrupt (a task spinning, a handler spinning) is fast-forwarded to the next event in the same
-way (a busy delay loop that long would be timed wrongly: none exists in the firmware).
+way (a busy delay loop that long would be timed wrongly: none exists in the firmware). The host-time slices of a
+run end at a block's start, from the block hook (unicorn's emu_start timeout, which stops inside an instruction that
+then runs again with its MMIO or flash side effects repeated, is only a backstop).
 """
 
 from __future__ import annotations
@@ -1125,6 +1127,8 @@ class Sim(boot.Machine):
             uc = self.uc
             if reason & 8:  # outside the instruction table (code in RAM, the boot alias)
                 self._st.insns += self.img.insns_in(addr, size) - 1
+            if reason & 2 and self._slice_over(addr, size):
+                return
             if reason & 1:
                 self._hot_block(uc, addr)
             if reason & 2 and self._st.insns >= self._st.next_check:
@@ -1147,6 +1151,8 @@ class Sim(boot.Machine):
             n = self.ninsn[key] = self.img.insns_in(addr, size)
         st.insns += n
         st.last_addr, st.last_size = addr, size
+        if st.insns >= st.next_check and self._slice_over(addr, size):
+            return
         if addr in self.hot:
             self._hot_block(uc, addr)
         if st.insns >= st.next_check:
@@ -1184,6 +1190,22 @@ class Sim(boot.Machine):
         if addr in self.img.task_polls:
             self.polled[addr] += 1
 
+    # The host-time slices of a run: Python stops the emulation at a block's start once the slice is over, never
+    # unicorn's emu_start timeout (only a backstop): that stops inside an instruction, which runs again on resume with
+    # its MMIO or flash side effects repeated (a flash key written twice locks the flash interface until reset).
+    SLICE_INSNS = 2_000_000  # Python looks at least this often (next_check)
+    slice_end = math.inf
+
+    def _slice_over(self, addr: int, size: int) -> bool:
+        """The slice is over: stop before this block runs (its instructions, counted on entry, are taken back: they
+        are counted when it runs on resume)."""
+        if time.monotonic() < self.slice_end:
+            return False
+        self._st.insns -= self.img.insns_in(addr, size)
+        self.req = "slice"
+        self.uc.emu_stop()
+        return True
+
     def _async_check(self):
         self.process_due()
         if self.req or self.halted:
@@ -1197,7 +1219,7 @@ class Sim(boot.Machine):
             self.next_check = self.insns + 64  # masked (PRIMASK/BASEPRI): look again soon
             return
         gap = (self.next_event() - self.now()) * self.hz
-        self.next_check = self.insns + max(1, int(min(gap, 1 << 40)))
+        self.next_check = self.insns + max(1, int(min(gap, self.SLICE_INSNS)))
 
     def _spin_window_end(self):
         blocks, mmio = self._take_window(), self.mmio_count - self.win_mmio
@@ -1235,8 +1257,9 @@ class Sim(boot.Machine):
         if remaining <= 0:
             self.stop_kind, self.stop_msg = "timeout", f"host-time budget exhausted ({self.timeout_s:g} s)"
             return "stop"
+        self.slice_end = time.monotonic() + min(1.0, remaining)
         try:
-            uc.emu_start(pc | 1, self.UNTIL, timeout=int(min(1.0, remaining) * 1e6))
+            uc.emu_start(pc | 1, self.UNTIL, timeout=int((remaining + 5.0) * 1e6))  # a backstop only
         except UcError as e:
             err = e
         self.flash_sync()

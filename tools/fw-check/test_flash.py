@@ -348,7 +348,8 @@ class SyntheticFlashTests(FlashTestBase):
 
     def test_embassy_sequence_and_violations_on_every_engine(self):
         results = {}
-        for engine in ("machine", "sim-python", "sim-c"):
+        engines = ("machine", "sim-python") + (("sim-c",) if fastblock.library() is not None else ())
+        for engine in engines:
             with self.subTest(engine=engine):
                 m = self.run_sequence(engine)
                 got = list(self.words(m, len(self.WANT)))
@@ -369,8 +370,8 @@ class SyntheticFlashTests(FlashTestBase):
                 self.assertTrue(all(b == 0xFF for b in m.flash_mem[0x2_0014:0x4_0000]))
                 results[engine] = (got, bytes(m.flash_mem), {k: s[k] for k in ("programs", "program_s",
                                                                                  "erase_s", "violation_count")})
-        if len(results) == 3:
-            self.assertEqual(results["machine"], results["sim-python"])
+        self.assertEqual(results["machine"], results["sim-python"])
+        if "sim-c" in results:
             self.assertEqual(results["sim-python"], results["sim-c"])
 
     def test_typical_timing_and_bsy_polls(self):

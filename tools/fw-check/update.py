@@ -29,7 +29,7 @@ swap    + NEW_IMAGE in DFU (0x0806_0000) and embassy-boot's swap request in the 
         (embassy-boot's swap: ACTIVE page k -> DFU page k + 1, DFU page k -> ACTIVE page k), NEW_ELF is the code
         that runs (identified in flash) and reaches idle, the boot report says Swapped (1) with the new version, the
         IWDG never expired (the bootloader feeds it around each erase: the largest gap between feeds is reported
-        against the timeout), and no flash-interface violation.
+        against the timeout, and below the timeout at the LSI's fastest, 47 kHz), and no flash-interface violation.
 refuse  the same with one payload byte flipped (`--flip-offset`, default the middle of the payload): the bootloader
         refuses (boot report Refused (3) with a non-zero refusal code, ImageError::Hash = 7 expected), ACTIVE is
         byte for byte what it was and APP_ELF boots to idle.
@@ -75,6 +75,7 @@ HEADER_LEN = 512
 SWAP_MAGIC = b"\xf0" * 4  # embassy-boot's State::Swap (its first state word; the rest erased)
 REPORT_ADDR, REPORT_MAGIC = 0x2000_0000, 0xB007_2E90
 ACTIONS = ["Booted", "Swapped", "Reverted", "Refused"]
+LSI_MAX_HZ = 47_000.0  # DS8626: the LSI (the IWDG's clock) is 17-47 kHz over parts and temperature
 REFUSALS = {1: "Magic", 2: "Format", 3: "Board", 4: "Rollback", 5: "TooLarge", 6: "Signature", 7: "Hash", 8: "Flash"}
 
 
@@ -216,6 +217,7 @@ class Run:
         keys = [(k, t) for k, _, t in iw.keys if t <= t_jump + 1e-9]
         start = next((t for k, t in keys if k == 0xCCCC), None)
         out = {"started_by_bootloader": start is not None, "timeout_s": round(iw.timeout_s() * 32_000 / m.lsi_hz, 3),
+               "timeout_fastest_lsi_s": round(iw.timeout_s() * 32_000 / LSI_MAX_HZ, 3),
                "lsi_hz": m.lsi_hz, "resets": [b["cause"] for b in m.boots[1:]]}
         if start is not None:
             feeds = [start] + [t for k, t in keys if k == 0xAAAA and t >= start] + [t_jump]
@@ -309,6 +311,9 @@ def s_swap(ctx) -> Check:
     iw = r.iwdg()
     c.that("the IWDG never expired during the swap", not iw["resets"],
            {k: iw.get(k) for k in ("started_by_bootloader", "feeds", "max_gap_s", "timeout_s", "margin_s", "resets")})
+    c.that("the largest gap between the bootloader's IWDG feeds is below the timeout at the fastest LSI (47 kHz)",
+           not iw["started_by_bootloader"] or iw["max_gap_s"] < iw["timeout_fastest_lsi_s"],
+           {k: iw.get(k) for k in ("max_gap_s", "timeout_fastest_lsi_s")})
     fl = r.m.flash_summary()
     c.that("the swap erased and programmed (ACTIVE and DFU sectors)",
            {5, 6} <= {s for e in fl["erases"] for s in e["sectors"]} and fl["programs"] > 0,
