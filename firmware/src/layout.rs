@@ -95,7 +95,7 @@ pub const BOOT_REPORT_LEN: u32 = 32;
 /// application leaves to its stack (at least [`MCU_STACK_LEN`]; flip-link puts the application's `.data`, `.bss`
 /// and `.uninit` at the top of SRAM), so that the bootloader never overwrites the application's reset history
 /// (`.uninit`), which must survive from one boot to the next.
-pub const BOOTLOADER_RAM_LEN: u32 = 16 * 1024;
+pub const BOOTLOADER_RAM_LEN: u32 = 24 * 1024;
 
 /// Whether an application's first two vector-table words can start it: the initial stack pointer word-aligned in
 /// SRAM past the boot report (it may be SRAM's end: the stack grows down), the reset vector a Thumb address

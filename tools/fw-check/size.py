@@ -1,9 +1,16 @@
 #!/usr/bin/env python3
-"""Memory budgets of the firmware ELF: flash, SRAM and CCM RAM, from its program headers and sections.
+"""Memory budgets of a firmware ELF (the application or the bootloader): flash, SRAM and CCM RAM, from its program
+headers and sections, and the regions each must stay inside.
 
 Usage:
     python3 tools/fw-check/size.py target/thumbv7em-none-eabihf/fw/firmware \
-        [--flash-max BYTES] [--sram-max BYTES] [--ccm-max BYTES] [--json out.json]
+        [--flash-max BYTES] [--sram-max BYTES] [--ccm-max BYTES] \
+        [--flash-region START:END] [--sram-region START:END] [--json out.json]
+
+Regions (`docs/update.md`, `firmware/src/layout.rs`): with --flash-region every flash PT_LOAD segment (its load
+address and file size) must lie inside [START, END) — the application's is ACTIVE after the image header, the
+bootloader's its two sectors; with --sram-region every allocated SRAM section must — neither may touch the boot
+report at the start of SRAM. START and END are numbers as Python reads them (0x0802_0200, 131072).
 
 What is counted (every allocated section, by where it lives):
 - flash: the bytes the image occupies in flash, i.e. the file size of every PT_LOAD segment whose physical (load)
@@ -30,6 +37,39 @@ CCM = (0x1000_0000, 0x1001_0000)
 
 def within(addr, region):
     return region[0] <= addr < region[1]
+
+
+def outside(elf, flash_region=None, sram_region=None):
+    """What lies outside the given regions: a list of reasons (empty when everything is inside)."""
+    reasons = []
+    if flash_region:
+        lo, hi = flash_region
+        for seg in elf.iter_segments():
+            if seg["p_type"] != "PT_LOAD" or seg["p_filesz"] == 0 or not within(seg["p_paddr"], FLASH):
+                continue
+            start, end = seg["p_paddr"], seg["p_paddr"] + seg["p_filesz"]
+            if start < lo or end > hi:
+                reasons.append(f"flash: a segment at 0x{start:08x}..0x{end:08x} is outside 0x{lo:08x}..0x{hi:08x}")
+    if sram_region:
+        lo, hi = sram_region
+        for sec in elf.iter_sections():
+            if not sec["sh_flags"] & 0x2 or sec["sh_size"] == 0 or not within(sec["sh_addr"], SRAM):
+                continue
+            start, end = sec["sh_addr"], sec["sh_addr"] + sec["sh_size"]
+            if start < lo or end > hi:
+                reasons.append(f"sram: {sec.name} at 0x{start:08x}..0x{end:08x} is outside 0x{lo:08x}..0x{hi:08x}")
+    return reasons
+
+
+def region(text):
+    """START:END as a (start, end) pair."""
+    try:
+        lo, hi = (int(x, 0) for x in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not START:END")
+    if lo >= hi:
+        raise argparse.ArgumentTypeError(f"{text!r}: START must be below END")
+    return lo, hi
 
 
 def measure(elf):
@@ -65,16 +105,25 @@ def main(argv=None):
     ap.add_argument("--flash-max", type=int, default=None, help="flash budget, bytes")
     ap.add_argument("--sram-max", type=int, default=None, help="SRAM budget (data + bss + uninit), bytes")
     ap.add_argument("--ccm-max", type=int, default=None, help="CCM RAM budget, bytes")
+    ap.add_argument("--flash-region", type=region, default=None, metavar="START:END",
+                    help="every flash segment inside [START, END)")
+    ap.add_argument("--sram-region", type=region, default=None, metavar="START:END",
+                    help="every SRAM section inside [START, END)")
     ap.add_argument("--json", default=None, help="write the figures here")
     args = ap.parse_args(argv)
     try:
         with open(args.elf, "rb") as f:
-            figures = measure(ELFFile(f))
+            elf = ELFFile(f)
+            figures = measure(elf)
+            failures = outside(elf, args.flash_region, args.sram_region)
     except (OSError, ELFError) as e:
         print(f"size.py: {args.elf}: {e}", file=sys.stderr)
         return 2
     budgets = {"flash": args.flash_max, "sram": args.sram_max, "ccm": args.ccm_max}
-    failures = []
+    for name, reg in (("flash", args.flash_region), ("sram", args.sram_region)):
+        if reg:
+            figures[name]["region"] = list(reg)
+            print(f"{name} region 0x{reg[0]:08x}..0x{reg[1]:08x}: {'inside' if not any(r.startswith(name) for r in failures) else 'NOT inside'}")
     print(f"{'memory':<8}{'bytes':>10}{'budget':>10}{'used':>8}  sections")
     for name, fig in figures.items():
         budget = budgets[name]

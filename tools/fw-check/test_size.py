@@ -82,3 +82,18 @@ def test_budgets_pass_and_fail(tmp_path, capsys):
     assert size.main([str(elf), "--flash-max", str(0x12FF)]) == 1
     assert "over the 4863 B budget by 1 B" in capsys.readouterr().out
     assert size.main([str(tmp_path / "missing")]) == 2
+
+
+def test_regions(tmp_path, capsys):
+    """.text at 0x0800_0000, .data's image at 0x0800_2000..0x0800_2300; .data and .bss at 0x2000_0000..0x2000_0800."""
+    elf = tmp_path / "fw.elf"
+    write_elf(elf)
+    assert size.main([str(elf), "--flash-region", "0x0800_0000:0x0800_2300", "--sram-region", "0x2000_0000:0x2000_0800"]) == 0
+    # the application's region (ACTIVE after its header) does not hold this ELF's flash
+    assert size.main([str(elf), "--flash-region", "0x0802_0200:0x0806_0000"]) == 1
+    assert "flash: a segment at 0x08000000..0x08001000 is outside 0x08020200..0x08060000" in capsys.readouterr().out
+    # one byte short at the end
+    assert size.main([str(elf), "--flash-region", "0x0800_0000:0x0800_22ff"]) == 1
+    # the boot report's 32 bytes at the start of SRAM must stay free
+    assert size.main([str(elf), "--sram-region", "0x2000_0020:0x2002_0000"]) == 1
+    assert "sram: .data at 0x20000000..0x20000300 is outside 0x20000020..0x20020000" in capsys.readouterr().out

@@ -6,7 +6,7 @@
 //! | embassy-executor, TIM5 time driver | [`clock::run`]: one thread, virtual or real time |
 //! | USART1 RX on a DMA ring (FPGA frames) | [`line::Line`] of 8 KiB: overruns when not read in time, injected errors |
 //! | USART2 (bus), 115200 baud, RX on a 6.5 KiB DMA ring | [`line::Line`]s; the transmitter paced at 115200 baud |
-//! | flash sectors 1–2 (16 KiB each) | [`flash`]: `shared`'s NOR model with the same sectors, optionally in a file; [`flash::Stalling`] stalls the CPU for the datasheet's erase and program times |
+//! | flash sectors 2–3 (16 KiB each) | [`flash`]: `shared`'s NOR model with the same sectors, optionally in a file; [`flash::Stalling`] stalls the CPU for the datasheet's erase and program times |
 //! | IWDG, LED | a feed counter, a no-op pin |
 //! | the reset history in no-init RAM (`fault.rs`) | [`SimResets`]: the same [`crate::resets::Persist`] behind a mutex |
 //!
