@@ -133,6 +133,18 @@ class Check:
         return bool(self.items) and all(i["ok"] for i in self.items)
 
 
+def run_check(name, fn, ctx, host_key="host_s") -> Check:
+    """fn(ctx) timed on the host (into c.info[host_key]); a ScenarioError becomes a Check with a failed "ran"."""
+    t0 = time.monotonic()
+    try:
+        c = fn(ctx)
+    except sc.ScenarioError as e:
+        c = Check(name)
+        c.that("ran", False, str(e))
+    c.info[host_key] = round(time.monotonic() - t0, 2)
+    return c
+
+
 # -- scenarios ------------------------------------------------------------------------------------------------
 
 def s_hse_dead(ctx) -> Check:
@@ -433,13 +445,7 @@ def run_all(inject_elf, flight_elf, ground, only=None, verbose=False, noise_s=No
         for name, fn in FAULT_SCENARIOS.items():
             if only and name not in only:
                 continue
-            t0 = time.monotonic()
-            try:
-                c = fn(ctx)
-            except sc.ScenarioError as e:
-                c = Check(name)
-                c.that("ran", False, str(e))
-            c.info["host_s"] = round(time.monotonic() - t0, 2)
+            c = run_check(name, fn, ctx)
             out.append((name, c))
             if verbose:
                 print_one(name, c)

@@ -38,6 +38,31 @@ def args(**kw):
     return a
 
 
+def thumb_func(name: str, body: str) -> str:
+    """The assembly of a global Thumb function `name` whose code is `body` (no newline at the end)."""
+    return f""".thumb_func
+.global {name}
+.type {name},%function
+{name}:
+{body}
+.size {name}, .-{name}"""
+
+
+def assemble(test: unittest.TestCase, src: str, ld: str, prefix: str) -> str:
+    """Assembles `src` (llvm-mc) and links it with the linker script `ld` (rust-lld) in a temporary directory that
+    `test` removes at its cleanup; returns the ELF's path."""
+    d = tempfile.mkdtemp(prefix=prefix)
+    test.addCleanup(shutil.rmtree, d, True)
+    for name, text in (("t.s", src), ("t.ld", ld)):
+        with open(os.path.join(d, name), "w") as f:
+            f.write(text)
+    subprocess.run(["llvm-mc", "-triple=thumbv7em-none-eabihf", "-mcpu=cortex-m4", "-filetype=obj",
+                    os.path.join(d, "t.s"), "-o", os.path.join(d, "t.o")], check=True)
+    subprocess.run([find_lld(), "-flavor", "gnu", "-e", "Reset", "-T", os.path.join(d, "t.ld"),
+                    os.path.join(d, "t.o"), "-o", os.path.join(d, "t.elf")], check=True, capture_output=True)
+    return os.path.join(d, "t.elf")
+
+
 class FakeMachine:
     """Enough of boot.Machine for the peripheral models."""
 
@@ -238,12 +263,7 @@ SECTIONS {
 .word DefaultHandler
 .endr
 .text
-.thumb_func
-.global Reset
-.type Reset,%function
-Reset:
-{body}
-.size Reset, .-Reset
+{thumb_func("Reset", body)}
 .thumb_func
 .global DefaultHandler
 .type DefaultHandler,%function
@@ -262,17 +282,7 @@ rust_begin_unwind: b rust_begin_unwind
 {polls}
 {extra}
 """
-        d = tempfile.mkdtemp(prefix="boot-test-")
-        self.addCleanup(shutil.rmtree, d, True)
-        with open(os.path.join(d, "t.s"), "w") as f:
-            f.write(src)
-        with open(os.path.join(d, "t.ld"), "w") as f:
-            f.write(self.LD)
-        subprocess.run(["llvm-mc", "-triple=thumbv7em-none-eabihf", "-mcpu=cortex-m4", "-filetype=obj",
-                        os.path.join(d, "t.s"), "-o", os.path.join(d, "t.o")], check=True)
-        subprocess.run([find_lld(), "-flavor", "gnu", "-e", "Reset", "-T", os.path.join(d, "t.ld"),
-                        os.path.join(d, "t.o"), "-o", os.path.join(d, "t.elf")], check=True, capture_output=True)
-        return os.path.join(d, "t.elf")
+        return assemble(self, src, self.LD, "boot-test-")
 
     def run_elf(self, path, **kw):
         img = boot.Image(path)

@@ -9,16 +9,14 @@ hand-assembled Thumb firmwares (llvm-mc + rust-lld, as test_boot.py; skipped whe
 import os
 import shutil
 import struct
-import subprocess
 import sys
-import tempfile
 import unittest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import boot  # noqa: E402
 import emu  # noqa: E402
 import test_boot  # noqa: E402
-from test_boot import FakeMachine, args, find_lld  # noqa: E402
+from test_boot import FakeMachine, args, assemble, find_lld, thumb_func  # noqa: E402
 
 RES = 0x2000_4000  # where the test firmwares write their results (SRAM, kept across resets)
 
@@ -225,14 +223,7 @@ class SyntheticSimTests(unittest.TestCase):
 
     def build(self, reset: str, **handlers) -> str:
         h = dict(self.DEFAULT_HANDLERS, **handlers)
-        funcs = "".join(f"""
-.thumb_func
-.global {name}
-.type {name},%function
-{name}:
-{body}
-.size {name}, .-{name}
-""" for name, body in h.items())
+        funcs = "".join(f"\n{thumb_func(name, body)}\n" for name, body in h.items())
         src = f""".syntax unified
 .cpu cortex-m4
 .fpu fpv4-sp-d16
@@ -242,25 +233,11 @@ class SyntheticSimTests(unittest.TestCase):
 .word Reset
 {chr(10).join('.word ' + v for v in VECTORS)}
 .text
-.thumb_func
-.global Reset
-.type Reset,%function
-Reset:
-{reset}
-.size Reset, .-Reset
+{thumb_func("Reset", reset)}
 {funcs}
 .ltorg
 """
-        d = tempfile.mkdtemp(prefix="emu-test-")
-        self.addCleanup(shutil.rmtree, d, True)
-        for name, text in (("t.s", src), ("t.ld", self.LD)):
-            with open(os.path.join(d, name), "w") as f:
-                f.write(text)
-        subprocess.run(["llvm-mc", "-triple=thumbv7em-none-eabihf", "-mcpu=cortex-m4", "-filetype=obj",
-                        os.path.join(d, "t.s"), "-o", os.path.join(d, "t.o")], check=True)
-        subprocess.run([find_lld(), "-flavor", "gnu", "-e", "Reset", "-T", os.path.join(d, "t.ld"),
-                        os.path.join(d, "t.o"), "-o", os.path.join(d, "t.elf")], check=True, capture_output=True)
-        return os.path.join(d, "t.elf")
+        return assemble(self, src, self.LD, "emu-test-")
 
     def sim(self, path, **kw):
         m = emu.Sim(boot.Image(path), args(spin_limit=5000), **kw)

@@ -12,16 +12,14 @@ import contextlib
 import os
 import shutil
 import struct
-import subprocess
 import sys
-import tempfile
 import unittest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import boot  # noqa: E402
 import emu  # noqa: E402
 import fastblock  # noqa: E402
-from test_boot import POLL, FakeMachine, args, find_lld  # noqa: E402
+from test_boot import POLL, FakeMachine, args, assemble, find_lld, thumb_func  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
@@ -176,12 +174,7 @@ def firmware(body: str, origin: int = boot.FLASH_BASE, extra: str = "", poll: in
 .type Hang,%function
 Hang: b Hang
 .size Hang, .-Hang
-.thumb_func
-.global Reset
-.type Reset,%function
-Reset:
-{body}
-.size Reset, .-Reset
+{thumb_func("Reset", body)}
 {polls}
 {extra}
 .ltorg
@@ -202,12 +195,38 @@ def wait(label: str) -> str:
 """
 
 
-def erase(snb: int, psize: int, label: str = "9") -> str:
-    return f"""  ldr r0, =(2 | ({snb} << 3) | ({psize} << 8))
-  str r0, [r4, #0x10]
+def start_erase(label: str = "9") -> str:
+    """The sector erase whose CR value (SER, SNB, PSIZE) is in r0: CR, then STRT, then the wait until BSY clears."""
+    return f"""  str r0, [r4, #0x10]
   orr r0, r0, #0x10000
   str r0, [r4, #0x10]
 {wait(label)}"""
+
+
+def erase(snb: int, psize: int, label: str = "9") -> str:
+    return f"""  ldr r0, =(2 | ({snb} << 3) | ({psize} << 8))
+{start_erase(label)}"""
+
+
+def jump(vector_table: int) -> str:
+    """What a bootloader ends with: VTOR to the application's vector table, its MSP, a branch to its Reset."""
+    return f"""  ldr r0, =0xE000ED08
+  ldr r1, ={vector_table}
+  str r1, [r0]
+  ldr r2, [r1]
+  msr msp, r2
+  ldr r3, [r1, #4]
+  bx r3
+"""
+
+
+def record(off: int, at: int) -> str:
+    """SR and then the word at r5 + off, to RES + at and RES + at + 4 (r4: the flash interface, r7: RES)."""
+    return f"""  ldr r1, [r4, #0xC]
+  str r1, [r7, #{at}]
+  ldr r1, [r5, #{off}]
+  str r1, [r7, #{at + 4}]
+"""
 
 
 IDLE = "99: wfe\n  b 99b\n"
@@ -228,16 +247,7 @@ class FlashTestBase(unittest.TestCase):
     """Builds and runs the tiny firmwares (no tests of its own)."""
 
     def build(self, src: str, origin: int = boot.FLASH_BASE) -> str:
-        d = tempfile.mkdtemp(prefix="flash-test-")
-        self.addCleanup(shutil.rmtree, d, True)
-        for name, text in (("t.s", src), ("t.ld", ld_script(origin))):
-            with open(os.path.join(d, name), "w") as f:
-                f.write(text)
-        subprocess.run(["llvm-mc", "-triple=thumbv7em-none-eabihf", "-mcpu=cortex-m4", "-filetype=obj",
-                        os.path.join(d, "t.s"), "-o", os.path.join(d, "t.o")], check=True)
-        subprocess.run([find_lld(), "-flavor", "gnu", "-e", "Reset", "-T", os.path.join(d, "t.ld"),
-                        os.path.join(d, "t.o"), "-o", os.path.join(d, "t.elf")], check=True, capture_output=True)
-        return os.path.join(d, "t.elf")
+        return assemble(self, src, ld_script(origin), "flash-test-")
 
     def sim(self, img, **kw):
         m = emu.Sim(img, args(spin_limit=5000), **kw)
@@ -290,21 +300,13 @@ class SyntheticFlashTests(FlashTestBase):
   str r0, [r4, #0x10]
   movs r0, #0
   strb r0, [r5, #8]
-  ldr r1, [r4, #0xC]
-  str r1, [r7, #28]
-  ldr r1, [r5, #8]
-  str r1, [r7, #32]
-  ldr r0, =0xF3
+{record(8, 28)}  ldr r0, =0xF3
   str r0, [r4, #0xC]
   ldr r0, =0x80000000
   str r0, [r4, #0x10]
   movs r0, #0
   str r0, [r5, #12]
-  ldr r1, [r4, #0xC]
-  str r1, [r7, #36]
-  ldr r1, [r5, #12]
-  str r1, [r7, #40]
-  movs r0, #1
+{record(12, 36)}  movs r0, #1
   str r0, [r4, #0x10]
   ldr r1, [r4, #0x10]
   str r1, [r7, #44]
@@ -484,14 +486,8 @@ class LoaderTests(FlashTestBase):
   ldr r0, [r7, #0x10]
   adds r0, #1
   str r0, [r7, #0x10]
-8: ldr r0, =0xE000ED08
-  ldr r1, ={self.ACTIVE + 0x200}
-  str r1, [r0]
-  ldr r2, [r1]
-  msr msp, r2
-  ldr r3, [r1, #4]
-  bx r3
-"""
+8:
+{jump(self.ACTIVE + 0x200)}"""
         return self.build(firmware(body))
 
     def app(self, marker: int, pad: int, request: bool = False) -> str:

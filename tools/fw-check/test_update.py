@@ -23,7 +23,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import boot  # noqa: E402
 import update as up  # noqa: E402
 from test_boot import POLL  # noqa: E402
-from test_flash import FLASH_IF, HAVE_TOOLS, IDLE, RES, UNLOCK, FlashTestBase, firmware  # noqa: E402
+from test_flash import (FLASH_IF, HAVE_TOOLS, IDLE, RES, UNLOCK, FlashTestBase, erase, firmware, jump,  # noqa: E402
+                        start_erase, wait)
 
 ROOT = up.ROOT
 BL_ELF = os.environ.get("FW_BOOTLOADER_ELF", up.DEFAULT_BOOTLOADER)
@@ -96,48 +97,40 @@ class SyntheticUpdateTests(FlashTestBase):
     """update.py's scenarios end to end on a synthetic bootloader that does what the real one must."""
 
     def bootloader(self, feed: bool = True) -> str:
-        copy = """copy:
-  push {lr}
+        copy = f"""copy:
+  push {{lr}}
   bl feed
   lsls r0, r2, #3
   orr r0, r0, #2
   orr r0, r0, #0x200
-  str r0, [r4, #0x10]
-  orr r0, r0, #0x10000
-  str r0, [r4, #0x10]
-1: ldr r1, [r4, #0xC]
-  tst r1, #0x10000
-  bne 1b
-  bl feed
+{start_erase("1")}  bl feed
   ldr r0, =0x201
   str r0, [r4, #0x10]
   ldr r3, =32768
 2: ldr r0, [r5], #4
   str r0, [r6], #4
-3: ldr r1, [r4, #0xC]
-  tst r1, #0x10000
-  bne 3b
-  lsls r0, r3, #22
+{wait("3")}  lsls r0, r3, #22
   bne 4f
   bl feed
 4: subs r3, #1
   bne 2b
   movs r0, #0
   str r0, [r4, #0x10]
-  pop {pc}
+  pop {{pc}}
 """
-        erase_state = """  bl feed
-  ldr r0, =(2 | (4 << 3) | (2 << 8))
-  str r0, [r4, #0x10]
-  orr r0, r0, #0x10000
-  str r0, [r4, #0x10]
-5: ldr r1, [r4, #0xC]
-  tst r1, #0x10000
-  bne 5b
-  bl feed
+        erase_state = f"""  bl feed
+{erase(4, 2, "5")}  bl feed
   ldr r0, =0x80000000
   str r0, [r4, #0x10]
 """
+        # embassy-boot's swap, page by page: ACTIVE page 1 -> DFU page 2, DFU page 1 -> ACTIVE page 1, ACTIVE page 0
+        # -> DFU page 1, DFU page 0 -> ACTIVE page 0 (from, to, the sector erased at `to`)
+        swap = "".join(f"""  ldr r5, =0x{src:08X}
+  ldr r6, =0x{dst:08X}
+  movs r2, #{sector}
+  bl copy
+""" for src, dst, sector in ((0x0804_0000, 0x080A_0000, 9), (0x0808_0000, 0x0804_0000, 6),
+                             (0x0802_0000, 0x0808_0000, 8), (0x0806_0000, 0x0802_0000, 5)))
         body = f"""  ldr r4, ={FLASH_IF}
   ldr r8, =0x40003000
   ldr r0, =0x5555
@@ -172,23 +165,7 @@ class SyntheticUpdateTests(FlashTestBase):
   ldr r0, [r5, #32]
   cmp r0, r1
   bne bad_hash
-{UNLOCK}  ldr r5, =0x08040000
-  ldr r6, =0x080A0000
-  movs r2, #9
-  bl copy
-  ldr r5, =0x08080000
-  ldr r6, =0x08040000
-  movs r2, #6
-  bl copy
-  ldr r5, =0x08020000
-  ldr r6, =0x08080000
-  movs r2, #8
-  bl copy
-  ldr r5, =0x08060000
-  ldr r6, =0x08020000
-  movs r2, #5
-  bl copy
-{erase_state}  movs r0, #1
+{UNLOCK}{swap}{erase_state}  movs r0, #1
   mov r9, r0
   b report
 bad_magic:
@@ -214,14 +191,7 @@ refuse:
   str r0, [r7, #16]
   ldr r0, =0x4FF8D16F
   str r0, [r7, #20]
-  ldr r0, =0xE000ED08
-  ldr r1, ={up.ACTIVE + 0x200}
-  str r1, [r0]
-  ldr r2, [r1]
-  msr msp, r2
-  ldr r3, [r1, #4]
-  bx r3
-"""
+{jump(up.ACTIVE + 0x200)}"""
         extra = f"""{copy}
 version:
   ldr r0, [r5]

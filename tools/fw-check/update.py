@@ -60,7 +60,7 @@ sys.path.insert(0, HERE)
 import boot  # noqa: E402
 import emu  # noqa: E402
 import scenarios as sc  # noqa: E402
-from faults import Check  # noqa: E402
+from faults import Check, run_check  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(HERE))
 DEFAULT_BOOTLOADER = os.path.join(ROOT, "target/thumbv7em-none-eabihf/fw/bootloader")
@@ -360,13 +360,7 @@ SCENARIOS = {"boot": s_boot, "swap": s_swap, "refuse": s_refuse}
 def run_scenarios(names, ctx, verbose=False) -> list:
     out = []
     for name in names:
-        t0 = time.monotonic()
-        try:
-            c = SCENARIOS[name](ctx)
-        except sc.ScenarioError as e:
-            c = Check(name)
-            c.that("ran", False, str(e))
-        c.info["scenario_host_s"] = round(time.monotonic() - t0, 2)
+        c = run_check(name, SCENARIOS[name], ctx, host_key="scenario_host_s")
         out.append((name, c))
         if verbose:
             print_one(name, c)
