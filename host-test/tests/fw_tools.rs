@@ -16,8 +16,8 @@ use shared::bus::{MAX_FRAME, MAX_WIRE_FRAME};
 use shared::storage::mock::MockFlash;
 use shared::update::image::{self, HEADER_LEN};
 use shared::update::{
-    BOARD_ID, BootControl, BootState, BootStateError, Context, DfuState, ImageError, PORT_UPDATE,
-    Receiver, UpdateEnvelope, UpdateError, UpdateRequest,
+    BOARD_ID, BootState, Context, DfuState, ImageError, PORT_UPDATE, Receiver, UpdateEnvelope,
+    UpdateError, UpdateRequest,
 };
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -52,24 +52,7 @@ fn test_key(seed: u8) -> ed25519_dalek::SigningKey {
 }
 
 /// The boot state partition, as the receiver's tests model it.
-#[derive(Default)]
-struct Boot {
-    state: BootState,
-}
-
-impl BootControl for Boot {
-    fn state(&mut self) -> BootState {
-        self.state
-    }
-    fn mark_updated(&mut self) -> Result<(), BootStateError> {
-        self.state = BootState::Swap;
-        Ok(())
-    }
-    fn mark_booted(&mut self) -> Result<(), BootStateError> {
-        self.state = BootState::Boot;
-        Ok(())
-    }
-}
+type Boot = shared::update::MockBoot;
 
 fn ctx(pk: &[u8; 32]) -> Context<'_> {
     Context {
@@ -185,12 +168,15 @@ fn python_cryptography_verifies_the_signature_and_the_hash() {
     let signed = update::sign(&payload, &key, 0x0102_0304, BOARD_ID).unwrap();
     let img = d.join("app.img");
     std::fs::write(&img, &signed).unwrap();
-    let out = Command::new("python3")
-        .args(["-c", PY_CHECK])
-        .arg(&img)
-        .arg(&public)
-        .output()
-        .unwrap();
+    let check = |img: &std::path::Path| {
+        Command::new("python3")
+            .args(["-c", PY_CHECK])
+            .arg(img)
+            .arg(&public)
+            .output()
+            .unwrap()
+    };
+    let out = check(&img);
     assert!(
         out.status.success(),
         "{}",
@@ -205,12 +191,7 @@ fn python_cryptography_verifies_the_signature_and_the_hash() {
         let mut bad = signed.clone();
         bad[at] ^= 1;
         std::fs::write(&img, &bad).unwrap();
-        let out = Command::new("python3")
-            .args(["-c", PY_CHECK])
-            .arg(&img)
-            .arg(&public)
-            .output()
-            .unwrap();
+        let out = check(&img);
         assert!(!out.status.success(), "byte {at} changed, still accepted");
     }
 }

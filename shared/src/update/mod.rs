@@ -198,6 +198,30 @@ pub trait BootControl {
     fn mark_booted(&mut self) -> Result<(), BootStateError>;
 }
 
+/// The boot state in RAM, for tests of the receiver and of ground tools (feature `mock-flash`, as
+/// [`crate::storage::mock::MockFlash`]): `mark_updated` and `mark_booted` set the state, and never fail.
+#[cfg(any(test, feature = "mock-flash"))]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MockBoot {
+    /// The state.
+    pub state: BootState,
+}
+
+#[cfg(any(test, feature = "mock-flash"))]
+impl BootControl for MockBoot {
+    fn state(&mut self) -> BootState {
+        self.state
+    }
+    fn mark_updated(&mut self) -> Result<(), BootStateError> {
+        self.state = BootState::Swap;
+        Ok(())
+    }
+    fn mark_booted(&mut self) -> Result<(), BootStateError> {
+        self.state = BootState::Boot;
+        Ok(())
+    }
+}
+
 /// What the DFU slot holds, as far as the receiver knows.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

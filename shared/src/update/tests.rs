@@ -37,28 +37,7 @@ fn image(
     (h.emit(), payload)
 }
 
-#[derive(Default)]
-struct Boot {
-    state: BootState,
-    fail: bool,
-}
-
-impl BootControl for Boot {
-    fn state(&mut self) -> BootState {
-        self.state
-    }
-    fn mark_updated(&mut self) -> Result<(), BootStateError> {
-        if self.fail {
-            return Err(BootStateError);
-        }
-        self.state = BootState::Swap;
-        Ok(())
-    }
-    fn mark_booted(&mut self) -> Result<(), BootStateError> {
-        self.state = BootState::Boot;
-        Ok(())
-    }
-}
+type Boot = MockBoot;
 
 fn ctx(pk: &[u8; 32]) -> Context<'_> {
     Context {
