@@ -75,6 +75,8 @@ pub const BUS_TX_TIMEOUT: Duration = Duration::from_millis(500);
 /// Longest a task that waits for events (the control queue, the store signals, PPS edges) waits before it beats
 /// anyway.
 pub const EVENT_WAIT: Duration = Duration::from_millis(500);
+/// How long the update service's `Reset` waits for its reply to leave before it resets.
+pub const RESET_AFTER: Duration = Duration::from_millis(250);
 /// Shortest time between two log lines of the same receive error (an error storm is counted, not logged).
 pub const ERROR_LOG_EVERY: Duration = Duration::from_secs(1);
 /// Tasks with a heartbeat ([`TaskId`]'s named variants, in order).
@@ -348,6 +350,8 @@ pub struct Platform {
     pub uart_errors: Option<fn() -> UartErrors>,
     /// The HSI's trim, while the core runs on the HSI: housekeeping trims it against the FPGA's frame rate.
     pub hsi_trim: Option<HsiTrim>,
+    /// Resets the MCU, recording a commanded reset (the update service's `Reset`; on the MCU it never returns).
+    pub reset: Option<fn()>,
 }
 
 impl core::fmt::Debug for Platform {
@@ -359,6 +363,7 @@ impl core::fmt::Debug for Platform {
             .field("resets", &self.resets.map(|_| ".."))
             .field("uart_errors", &self.uart_errors)
             .field("hsi_trim", &self.hsi_trim)
+            .field("reset", &self.reset.is_some())
             .finish()
     }
 }
@@ -379,6 +384,7 @@ impl Platform {
         resets: None,
         uart_errors: None,
         hsi_trim: None,
+        reset: None,
     };
 }
 
@@ -1043,6 +1049,17 @@ where
                 .await;
         }
         None => error!("update: a reply did not fit a packet"),
+    }
+    if update.receiver.take_reset() {
+        // The reply (and whatever is queued before it: ≤ 4 replies of ≤ 0.5 KB, 0.18 s at 115200 baud) leaves first.
+        Timer::after(RESET_AFTER).await;
+        match app.platform.reset {
+            Some(reset) => {
+                info!("update: reset by command");
+                reset();
+            }
+            None => warn!("update: Reset asked, but this platform cannot reset"),
+        }
     }
 }
 

@@ -63,6 +63,12 @@ fn leave_and_reset(kind: Kind, words: [u32; 7]) -> ! {
     cortex_m::peripheral::SCB::sys_reset()
 }
 
+/// Resets now, recording a commanded reset (`app::Platform::reset`: the update service's `Reset`).
+pub fn commanded_reset() {
+    cortex_m::interrupt::disable();
+    leave_and_reset(Kind::Commanded, [0; 7])
+}
+
 /// Runs `f` on the block with interrupts off (task code).
 fn with<R>(f: impl FnOnce(&mut Persist) -> R) -> R {
     cortex_m::interrupt::free(|_| {

@@ -144,6 +144,7 @@ async fn main(spawner: Spawner) {
         uart_errors: Some(board::uart_errors),
         // On the HSI, housekeeping trims it against the FPGA's crystal-timed frames.
         hsi_trim: (b.clock != board::ClockSource::Hse).then_some(board::HSI_TRIM),
+        reset: Some(fault::commanded_reset),
     });
     app.pipeline.get_mut().set_boot_count(state.boot_count);
     let store = STORE.init(defmt::unwrap!(

@@ -144,7 +144,12 @@ fn an_upload_through_loss_and_a_reset_is_swapped_in_and_confirms_itself() {
     // Second boot: the upload resumes where the DFU slot stops, and commits.
     let (dfu, state) = models(&mut sat);
     let mut sat = sat_on(dfu, state, 4);
-    let mut second = Uploader::new(&new, UploadConfig::default()).unwrap();
+    // With `--reset`: the SITL has no reset of its own (a warning); the reply still comes.
+    let config = UploadConfig {
+        reset: true,
+        ..UploadConfig::default()
+    };
+    let mut second = Uploader::new(&new, config).unwrap();
     let mut ground = Ground::new();
     sat.run(Duration::from_secs(600), async |_, board| {
         idle(&mut ground, board).await;
@@ -290,5 +295,57 @@ fn writes_are_refused_while_streaming_and_bad_images_at_open() {
     assert!(
         sat.update.dfu.0.mem.iter().all(|&b| b == 0xFF),
         "nothing written while streaming"
+    );
+}
+
+/// Resets the host "MCU": counts.
+static RESETS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+fn note_reset() {
+    RESETS.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+}
+
+#[test]
+fn a_reset_request_is_answered_before_the_reset() {
+    use shared::update::{UpdateEnvelope, UpdateReply, UpdateRequest};
+    let mut sat = Sat::boot_on(
+        simflash::erased(),
+        Some(firmware::layout::BUS_BAUD),
+        shared::pipeline::PipelineConfig::DEFAULT,
+        firmware::app::Platform {
+            reset: Some(note_reset),
+            ..firmware::app::Platform::default()
+        },
+    );
+    let (reply, resets_at_reply, resets_after) =
+        sat.run(Duration::from_secs(60), async |_, board| {
+            let mut framer = UpdateFramer::new(BusAddrs::default());
+            let request = UpdateEnvelope {
+                tag: 9,
+                request: UpdateRequest::Reset,
+            };
+            board.bus_rx.push(&framer.encode(&request).unwrap());
+            let reply = loop {
+                Timer::after(Duration::from_millis(5)).await;
+                if let Some(r) = framer
+                    .decode(&board.bus_tx.take_all())
+                    .into_iter()
+                    .find(|r| r.tag == 9)
+                {
+                    break r.reply;
+                }
+            };
+            let at_reply = RESETS.load(std::sync::atomic::Ordering::SeqCst);
+            Timer::after(firmware::app::RESET_AFTER + Duration::from_millis(100)).await;
+            (
+                reply,
+                at_reply,
+                RESETS.load(std::sync::atomic::Ordering::SeqCst),
+            )
+        });
+    assert_eq!(reply, UpdateReply::Resetting);
+    assert_eq!(
+        (resets_at_reply, resets_after),
+        (0, 1),
+        "the reply first, then one reset"
     );
 }

@@ -33,6 +33,9 @@ pub struct UploadConfig {
     pub chunk_len: usize,
     /// Commit after `Verify` (the swap happens at the satellite's next reset).
     pub commit: bool,
+    /// After the commit, ask the satellite to reset (`Reset`, sent once: a resend after a lost reply would reset
+    /// the new image before it confirmed itself, and the bootloader would revert it).
+    pub reset: bool,
     /// Start over (`Open { restart: true }`) instead of resuming what the DFU slot holds.
     pub restart: bool,
     /// How long to wait for the reply to `Status`, `Open` or a chunk.
@@ -50,6 +53,7 @@ impl Default for UploadConfig {
             window: 4,
             chunk_len: CHUNK_MAX,
             commit: true,
+            reset: false,
             restart: false,
             timeout: Duration::from_secs(1),
             long_timeout: Duration::from_secs(5),
@@ -185,6 +189,9 @@ pub enum UploadEvent {
     Verified,
     /// The satellite swaps the image in at its next reset.
     Committed,
+    /// The satellite acknowledged `Reset` (`true`), or its reply did not come (`false`: it may have reset anyway;
+    /// `Reset` is never sent twice).
+    Reset(bool),
 }
 
 /// Why chunks are sent again.
@@ -231,6 +238,7 @@ enum Phase {
     Chunks,
     Verify,
     Commit,
+    Reset,
     Done,
 }
 
@@ -243,6 +251,7 @@ impl Phase {
             Phase::Chunks => "Chunk",
             Phase::Verify => "Verify",
             Phase::Commit => "Commit",
+            Phase::Reset => "Reset",
             Phase::Done => "nothing",
         }
     }
@@ -425,6 +434,7 @@ impl Uploader {
             }
             Phase::Verify => UpdateRequest::Verify,
             Phase::Commit => UpdateRequest::Commit,
+            Phase::Reset => UpdateRequest::Reset,
         };
         let timeout = match self.phase {
             Phase::Erase(_) | Phase::Verify | Phase::Commit => self.config.long_timeout,
@@ -457,6 +467,11 @@ impl Uploader {
         }
         if self.phase == Phase::Chunks {
             self.rewind(self.acked, RewindCause::Timeout);
+        } else if self.phase == Phase::Reset {
+            // Never twice (see `UploadConfig::reset`).
+            self.pending.clear();
+            self.events.push_back(UploadEvent::Reset(false));
+            self.phase = Phase::Done;
         } else {
             self.pending.clear();
             self.events.push_back(UploadEvent::Timeout {
@@ -633,6 +648,14 @@ impl Uploader {
             }
             (Phase::Commit, UpdateReply::Committed) => {
                 self.events.push_back(UploadEvent::Committed);
+                self.phase = if self.config.reset {
+                    Phase::Reset
+                } else {
+                    Phase::Done
+                };
+            }
+            (Phase::Reset, UpdateReply::Resetting) => {
+                self.events.push_back(UploadEvent::Reset(true));
                 self.phase = Phase::Done;
             }
             (_, UpdateReply::Refused(e)) => self.refused(request, *e)?,

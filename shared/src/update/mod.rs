@@ -78,6 +78,9 @@ pub enum UpdateRequest {
     Confirm,
     /// Forget the session; cancel a swap committed since boot.
     Abort,
+    /// Reset the MCU once the reply has left (appended): a committed image is swapped in, a trial image that has
+    /// not confirmed itself is reverted. Send it once: a resend after a lost reply would reset the new image too.
+    Reset,
 }
 
 /// A reply with its request's tag.
@@ -122,6 +125,8 @@ pub enum UpdateReply {
     Confirmed,
     /// The session is forgotten.
     Aborted,
+    /// The MCU resets once this reply has left.
+    Resetting,
     /// Refused; nothing changed.
     Refused(UpdateError),
 }
@@ -361,6 +366,7 @@ pub struct Receiver {
     counters: UpdateCounters,
     last: UpdateOutcome,
     dfu_version: u32,
+    reset: bool,
 }
 
 impl Receiver {
@@ -371,12 +377,18 @@ impl Receiver {
             counters: UpdateCounters::ZERO,
             last,
             dfu_version: 0,
+            reset: false,
         }
     }
 
     /// The last outcome.
     pub fn last(&self) -> UpdateOutcome {
         self.last
+    }
+
+    /// Whether a `Reset` was acknowledged since the last call (the caller resets once the reply has left).
+    pub fn take_reset(&mut self) -> bool {
+        core::mem::take(&mut self.reset)
     }
 
     /// Notes an outcome decided outside the protocol (the image confirmed itself).
@@ -520,6 +532,10 @@ impl Receiver {
                 }
                 self.session = None;
                 Ok(UpdateReply::Aborted)
+            }
+            UpdateRequest::Reset => {
+                self.reset = true;
+                Ok(UpdateReply::Resetting)
             }
         }
     }

@@ -142,6 +142,13 @@ fn upload_verify_commit() {
         UpdateReply::Aborted
     );
     assert_eq!(boot.state, BootState::Boot);
+    // Reset: acknowledged, and taken once.
+    assert!(!rx.take_reset());
+    assert_eq!(
+        rx.handle(&UpdateRequest::Reset, &mut dfu, &c, &mut boot),
+        UpdateReply::Resetting
+    );
+    assert!(rx.take_reset() && !rx.take_reset(), "one reset per request");
 }
 
 #[test]

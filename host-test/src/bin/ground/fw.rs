@@ -66,6 +66,10 @@ pub struct UploadArgs {
     /// Start over instead of resuming what the satellite's DFU slot holds.
     #[arg(long)]
     restart: bool,
+    /// After the commit, reset the satellite (sent once): the bootloader swaps the image in, and it runs as a trial
+    /// until it confirms itself (30 s without a missed deadline).
+    #[arg(long, conflicts_with = "no_commit")]
+    reset: bool,
     /// Reply timeout of Status, Open and chunks, ms (erase, verify and commit wait 5 times longer, at least 5 s).
     #[arg(long, default_value_t = 1000)]
     timeout_ms: u64,
@@ -174,6 +178,7 @@ pub fn upload(a: UploadArgs) -> Result<()> {
     let config = UploadConfig {
         window: a.window,
         commit: !a.no_commit,
+        reset: a.reset,
         restart: a.restart,
         timeout,
         long_timeout: (timeout * 5).max(Duration::from_secs(5)),
@@ -251,6 +256,11 @@ pub fn upload(a: UploadArgs) -> Result<()> {
         UploadEvent::Committed => say(
             &pb,
             "committed: the satellite swaps it in at its next reset",
+        ),
+        UploadEvent::Reset(true) => say(&pb, "the satellite resets now"),
+        UploadEvent::Reset(false) => say(
+            &pb,
+            "no reply to Reset (not sent again: a second reset would revert the new image); check its telemetry",
         ),
     });
     pb.finish_and_clear();
