@@ -1130,8 +1130,18 @@ where
                 continue;
             }
             Either3::Second(()) => {
-                // The table in RAM failed its CRC: the newest stored one (or the factory default) replaces it.
-                load_calibration(store, &mut *app.pipeline.lock().await);
+                // The table in RAM failed its CRC: the newest stored one (or the factory default) replaces it; in
+                // safe mode always the factory default (a stored table may be what crashed the boots before).
+                let mut pipeline = app.pipeline.lock().await;
+                if app.platform.boot.safe_mode {
+                    pipeline.load_calibration_with(|table| {
+                        table.set_factory();
+                        CalSource::Factory
+                    });
+                } else {
+                    load_calibration(store, &mut *pipeline);
+                }
+                drop(pipeline);
                 app.count(Counter::CalRamRepairs);
                 continue;
             }

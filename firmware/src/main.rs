@@ -68,9 +68,13 @@ type Watchdog = board::Watchdog;
 type Led = board::Led;
 type Pps = board::Pps;
 
-/// The tasks a safe-mode boot runs: the bus, housekeeping (with the reset history) and the watchdog.
+/// The tasks a safe-mode boot runs: the bus, housekeeping (with the reset history), the watchdog, and storage (the
+/// update service: a software upload is how a crash-looping image is replaced; the calibration stays the factory's).
 fn essential(task: &str) -> bool {
-    matches!(task, "bus_rx" | "bus_tx" | "watchdog" | "housekeeping")
+    matches!(
+        task,
+        "bus_rx" | "bus_tx" | "storage" | "watchdog" | "housekeeping"
+    )
 }
 
 /// One embassy task per line of the table, each a call of its loop.
@@ -157,8 +161,8 @@ async fn main(spawner: Spawner) {
     let app: &'static FwApp = app;
     let safe = state.safe_mode;
     if safe {
-        // Bus RX, bus TX, watchdog, housekeeping: the tasks `essential` keeps.
-        app.set_monitored(0b0110_1100);
+        // Bus RX, bus TX, storage, watchdog, housekeeping: the tasks `essential` keeps.
+        app.set_monitored(0b0111_1100);
     }
     fault::monitor(app);
     board::start_deadline_monitor();
