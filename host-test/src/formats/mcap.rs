@@ -4,8 +4,8 @@
 //! Time stamps (`log_time` = `publish_time`, ns): a `Fused` report's spacecraft time (`unix_us`) once `SetTime` set
 //! it, else its frame time (`t_us`, the FPGA sample counter over the base rate). A `Nav` report's interval start is
 //! mapped to spacecraft time with the offset of the last `Time` report or timed `Fused` report before it, else left in
-//! frame time. `Health` and `Housekeeping` carry no frame time: they take the stamp of the last stamped message
-//! before them (0 before any).
+//! frame time. `Health`, `Housekeeping`, `Resets` and `Update` carry no frame time: they take the stamp of the last
+//! stamped message before them (0 before any).
 
 use crate::formats::telemetry::TelemetryLog;
 use serde_json::{Value, json};
@@ -21,6 +21,10 @@ pub const NAV_TOPIC: &str = "/imu_cluster/nav";
 pub const HEALTH_TOPIC: &str = "/imu_cluster/health";
 /// Topic of the housekeeping reports.
 pub const HOUSEKEEPING_TOPIC: &str = "/imu_cluster/housekeeping";
+/// Topic of the reset histories (after each housekeeping report).
+pub const RESETS_TOPIC: &str = "/imu_cluster/resets";
+/// Topic of the software update's state (after each housekeeping report).
+pub const UPDATE_TOPIC: &str = "/imu_cluster/update";
 
 /// Standard gravity, m/s² per g (the fused accelerations are sent in µg).
 const STANDARD_G: f64 = 9.806_65;
@@ -47,6 +51,10 @@ pub struct McapCounts {
     pub health: u64,
     /// On [`HOUSEKEEPING_TOPIC`].
     pub housekeeping: u64,
+    /// On [`RESETS_TOPIC`].
+    pub resets: u64,
+    /// On [`UPDATE_TOPIC`].
+    pub update: u64,
 }
 
 /// `{sec, nsec}` of a time in ns: the form Foxglove reads as a time stamp.
@@ -197,13 +205,17 @@ impl Clock {
                 self.offset_us = Some(i128::from(t.unix_us) - i128::from(t.t_us));
                 None
             }
-            Telemetry::Health(_) | Telemetry::Housekeeping(_) => Some(self.last_ns),
+            Telemetry::Health(_)
+            | Telemetry::Housekeeping(_)
+            | Telemetry::Resets(_)
+            | Telemetry::Update(_) => Some(self.last_ns),
             _ => None,
         }
     }
 }
 
-/// Writes `log`'s fused samples, navigation increments, health and housekeeping reports to `out` as MCAP (no
+/// Writes `log`'s fused samples, navigation increments, health and housekeeping reports, reset histories and update
+/// states to `out` as MCAP (no
 /// compression: readable by every MCAP reader). Returns the messages written per channel.
 pub fn write_mcap<W: Write + Seek>(log: &TelemetryLog, out: W) -> Result<McapCounts, McapError> {
     let mut w = mcap::Writer::new(out)?;
@@ -227,6 +239,16 @@ pub fn write_mcap<W: Write + Seek>(log: &TelemetryLog, out: W) -> Result<McapCou
             "shared::telemetry::HousekeepingReport",
         ),
     )?;
+    let resets = channel(
+        "imu_cluster.Resets",
+        RESETS_TOPIC,
+        report_schema("imu_cluster.Resets", "shared::telemetry::ResetHistory"),
+    )?;
+    let update = channel(
+        "imu_cluster.Update",
+        UPDATE_TOPIC,
+        report_schema("imu_cluster.Update", "shared::update::UpdateStatus"),
+    )?;
     let mut clock = Clock {
         offset_us: None,
         last_ns: 0,
@@ -239,6 +261,8 @@ pub fn write_mcap<W: Write + Seek>(log: &TelemetryLog, out: W) -> Result<McapCou
             Telemetry::Nav(r) => (nav, &mut counts.nav, nav_message(r, ns)),
             Telemetry::Health(r) => (health, &mut counts.health, serde_json::to_value(r)?),
             Telemetry::Housekeeping(r) => (hk, &mut counts.housekeeping, serde_json::to_value(r)?),
+            Telemetry::Resets(r) => (resets, &mut counts.resets, serde_json::to_value(r)?),
+            Telemetry::Update(r) => (update, &mut counts.update, serde_json::to_value(r)?),
             _ => continue,
         };
         let header = mcap::records::MessageHeader {
@@ -308,5 +332,38 @@ mod tests {
         assert!((w - std::f64::consts::PI / 180.0).abs() < 1e-15, "{w}");
         assert_eq!(m["linear_acceleration"]["z"].as_f64(), Some(9.80665));
         assert_eq!(m["timestamp"]["nsec"].as_u64(), Some(5));
+    }
+
+    /// Reset histories and update states get their channels, stamped like housekeeping (the last stamp before).
+    #[test]
+    fn resets_and_update_on_their_topics() {
+        let log = TelemetryLog {
+            messages: vec![
+                fused(1_000_000, None),
+                Telemetry::Resets(shared::telemetry::ResetHistory {
+                    boot_count: 3,
+                    short_runs: 0,
+                    safe_mode: false,
+                    dropped: 0,
+                    records: [None; shared::telemetry::RESET_HISTORY_LEN],
+                }),
+                Telemetry::Update(shared::update::UpdateStatus::UNKNOWN),
+                Telemetry::Update(shared::update::UpdateStatus::UNKNOWN),
+            ],
+            ..TelemetryLog::default()
+        };
+        let mut out = std::io::Cursor::new(Vec::new());
+        let c = write_mcap(&log, &mut out).unwrap();
+        assert_eq!((c.fused, c.resets, c.update), (1, 1, 2));
+        let bytes = out.into_inner();
+        let mut seen = Vec::new();
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            let body: Value = serde_json::from_slice(&m.data).unwrap();
+            seen.push((m.channel.topic.clone(), m.log_time, body));
+        }
+        assert_eq!(seen[1].0, RESETS_TOPIC);
+        assert_eq!((seen[2].0.as_str(), seen[2].1), (UPDATE_TOPIC, seen[0].1));
+        assert_eq!(seen[3].2["boot"], json!("Unknown"));
     }
 }

@@ -60,12 +60,14 @@ pub fn run(a: Args) -> Result<()> {
             mcap::write_mcap(&log, w).map_err(std::io::Error::other)
         })?;
         println!(
-            "{}: {} fused, {} navigation, {} health, {} housekeeping messages",
+            "{}: {} fused, {} navigation, {} health, {} housekeeping, {} reset-history, {} update messages",
             p.display(),
             c.fused,
             c.nav,
             c.health,
-            c.housekeeping
+            c.housekeeping,
+            c.resets,
+            c.update
         );
     }
     if let Some(p) = &a.allan {
