@@ -6,8 +6,8 @@
 //! * `BusNode::receive` over arbitrary chunks gives the same events and counters as over the whole stream;
 //! * KISS: `kiss::encode` then `KissDecoder` returns the frame unchanged (any bytes up to `MAX_FRAME`);
 //! * CSP: a packet emitted with `emit_kiss` parses back to its header and payload (inner CRC flag included);
-//! * a stream of well-formed packets only: every packet addressed to the node's command or ping port comes out
-//!   as that event with its payload, every other one is counted as ignored, no errors;
+//! * a stream of well-formed packets only: every packet addressed to the node's command, ping or update port
+//!   comes out as that event with its payload, every other one is counted as ignored, no errors;
 //! * `encode_telemetry` → a node listening as the ground receives the payload; `encode_reply` → the requester
 //!   receives the echoed payload.
 #![no_main]
@@ -98,12 +98,14 @@ impl Input {
 enum Ev {
     Command(Vec<u8>),
     Ping(CspHeader, Vec<u8>),
+    Update(CspHeader, Vec<u8>),
 }
 
 fn own(e: BusEvent<'_>) -> Ev {
     match e {
         BusEvent::Command(p) => Ev::Command(p.to_vec()),
         BusEvent::Ping { header, payload } => Ev::Ping(header, payload.to_vec()),
+        BusEvent::Update { header, payload } => Ev::Update(header, payload.to_vec()),
     }
 }
 
@@ -192,6 +194,8 @@ fn check(input: Input) {
                     expected.push(Ev::Command(payload.to_vec()));
                 } else if h.dst == cfg.addr && h.dport == PORT_PING {
                     expected.push(Ev::Ping(h, payload.to_vec()));
+                } else if h.dst == cfg.addr && h.dport == shared::update::PORT_UPDATE {
+                    expected.push(Ev::Update(h, payload.to_vec()));
                 } else {
                     expected_ignored += 1;
                 }

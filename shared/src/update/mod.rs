@@ -520,6 +520,8 @@ impl Receiver {
                 Ok(UpdateReply::Committed)
             }
             UpdateRequest::Confirm => {
+                // Rewrites the state partition: a 64 KiB erase on the F405.
+                ctx.writable?;
                 boot.mark_booted().map_err(|_| UpdateError::Flash)?;
                 self.last = UpdateOutcome::Confirmed(ctx.running_version);
                 Ok(UpdateReply::Confirmed)

@@ -235,6 +235,11 @@ fn refusals_are_typed_and_change_nothing() {
         UpdateReply::Refused(UpdateError::NotIdle)
     );
     assert_eq!(
+        rx.handle(&UpdateRequest::Confirm, &mut dfu, &busy, &mut boot),
+        UpdateReply::Refused(UpdateError::NotIdle),
+        "Confirm rewrites the boot state: not while streaming"
+    );
+    assert_eq!(
         rx.handle(&UpdateRequest::Erase { sector: 1 }, &mut dfu, &c, &mut boot),
         UpdateReply::Refused(UpdateError::SectorOrder { expected: 0 })
     );
