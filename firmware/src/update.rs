@@ -130,28 +130,44 @@ impl<D: NorFlash, S: NorFlash> Updater<D, S> {
         writable: Result<(), UpdateError>,
         out: &mut [u8],
     ) -> Option<usize> {
-        let ctx = Context {
-            public_key: &self.public_key,
-            board_id: self.board_id,
-            running_version: self.running_version,
-            max_image_len: self.max_image_len,
-            writable,
-        };
-        self.receiver
-            .handle_bytes(request, &mut self.dfu, &ctx, &mut self.boot, out)
-            .ok()
+        let (receiver, dfu, boot, ctx) = self.parts(writable);
+        receiver.handle_bytes(request, dfu, &ctx, boot, out).ok()
     }
 
     /// The service's state (reads the DFU slot's header).
     pub fn status(&mut self) -> UpdateStatus {
+        let (receiver, dfu, boot, ctx) = self.parts(Ok(()));
+        receiver.status(dfu, &ctx, boot)
+    }
+
+    /// The receiver, the slots it writes, and its context from this boot's facts (the fields borrowed apart).
+    fn parts(
+        &mut self,
+        writable: Result<(), UpdateError>,
+    ) -> (
+        &mut Receiver,
+        &mut D,
+        &mut BootStatePartition<S>,
+        Context<'_>,
+    ) {
+        let Self {
+            dfu,
+            boot,
+            receiver,
+            public_key,
+            board_id,
+            running_version,
+            max_image_len,
+            ..
+        } = self;
         let ctx = Context {
-            public_key: &self.public_key,
-            board_id: self.board_id,
-            running_version: self.running_version,
-            max_image_len: self.max_image_len,
-            writable: Ok(()),
+            public_key,
+            board_id: *board_id,
+            running_version: *running_version,
+            max_image_len: *max_image_len,
+            writable,
         };
-        self.receiver.status(&mut self.dfu, &ctx, &mut self.boot)
+        (receiver, dfu, boot, ctx)
     }
 
     /// The trial image confirms itself (`mark_booted`); `false` if the state partition could not be written.
