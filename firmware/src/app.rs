@@ -1005,12 +1005,14 @@ pub fn load_calibration<F: NorFlash, B: core::borrow::BorrowMut<PipelineMemory>>
     });
 }
 
-/// VDD is known to be below [`STORE_VDD_MIN_MV`] (no reading: not known to be low).
-fn vdd_low<B>(app: &App<B>) -> bool {
+/// VDD, mV, when it is below [`STORE_VDD_MIN_MV`] (no reading: not known to be low): flash writes (a calibration
+/// store, an update) are refused then.
+fn vdd_too_low<B>(app: &App<B>) -> Option<u16> {
     app.platform
         .mcu_sensors
         .and_then(|read| read())
-        .is_some_and(|(_, mv)| mv < STORE_VDD_MIN_MV)
+        .map(|(_, mv)| mv)
+        .filter(|&mv| mv < STORE_VDD_MIN_MV)
 }
 
 /// One request to the update service: handled on the DFU slot (flash writes only in `Mode::Idle` and at a VDD fit
@@ -1024,7 +1026,7 @@ where
     let idle = app.pipeline.lock().await.mode() == Mode::Idle;
     let writable = if !idle {
         Err(UpdateError::NotIdle)
-    } else if vdd_low(app) {
+    } else if vdd_too_low(app).is_some() {
         app.count(Counter::LowVdd);
         Err(UpdateError::LowVoltage)
     } else {
@@ -1150,12 +1152,7 @@ where
         // through it and the table is not copied into this task's state (1.8 KiB of RAM); no task runs until it
         // returns (`layout::STORE_STALL_MAX_US`: the bus ring holds twice that, the link task drops its ring).
         // VDD first: a store below the x32 programming minimum could write weak bits the read-back passes.
-        let vdd_mv = app
-            .platform
-            .mcu_sensors
-            .and_then(|read| read())
-            .map(|s| s.1);
-        if vdd_mv.is_some_and(|mv| mv < STORE_VDD_MIN_MV) {
+        if let Some(vdd_mv) = vdd_too_low(app) {
             app.count(Counter::LowVdd);
             error!("calibration: store refused, VDD {:?} mV", vdd_mv);
             app.last_store.lock(|c| c.set(StoreOutcome::Failed));
