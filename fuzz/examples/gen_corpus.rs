@@ -4,6 +4,8 @@
 //! `mimu_reader`, `csv_reader`) get the encodings themselves; the structured targets (`arbitrary` inputs) get
 //! `'R' ++ bytes`, their raw form (a link/bus stream, a flash image, link bytes and a command), which libFuzzer
 //! then mutates into structured inputs as well.
+//! The `update` target's seeds (`seed-fuzzed-*`) are not written here: they are inputs a fuzzing run reached
+//! (opened, erased, chunks written), kept in git because that target's `arbitrary` input has no raw form.
 
 use host_test::formats::csv::{Column, Recording, SensorKind};
 use host_test::formats::mimu::{ACK, Frame, ImuSample, TICKS_PER_SAMPLE};
