@@ -35,7 +35,6 @@ use embedded_io_async::{Read, Write};
 use embedded_storage::nor_flash::NorFlash;
 use shared::bus::csp::CspHeader;
 use shared::bus::{BusConfig, BusCounters, BusEvent, BusNode, MAX_PAYLOAD, MAX_WIRE_FRAME};
-use shared::calib::encoded_len_max;
 use shared::pipeline::{Output, Pipeline, PipelineConfig, PipelineMemory};
 use shared::storage::{CalStore, StoreError};
 use shared::telemetry::Mode;
@@ -45,9 +44,8 @@ use shared::telemetry::{
 };
 use shared::update::{UpdateError, UpdateStatus};
 use shared::wire::FpgaControl;
-use shared::wire::frame::GROUPS;
 
-use crate::layout::FPGA_RX_RING_LEN;
+use crate::layout::{CAL_SCRATCH, FPGA_RX_RING_LEN};
 use crate::log::Loggable;
 use crate::update::{CONFIRM_AFTER_MS, Updater};
 
@@ -57,8 +55,6 @@ type Raw = CriticalSectionRawMutex;
 pub const IDLE_TIMEOUT: Duration = Duration::from_millis(100);
 /// Bytes read from the FPGA ring per pass (a little over 4 frames).
 pub const LINK_CHUNK: usize = 1024;
-/// Scratch for the calibration store: record header, encoded table, CRC.
-pub const CAL_SCRATCH: usize = encoded_len_max(GROUPS) + 16;
 /// Telemetry messages queued for the bus (≈ 0.5 s of the default stream; 10 rather than 16 keeps RAM in its
 /// budget since the housekeeping message made every slot larger).
 pub const TELEMETRY_QUEUE: usize = 10;

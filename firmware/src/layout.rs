@@ -1,6 +1,7 @@
 //! STM32F405 facts shared by the board support (`board.rs`, flight), the bootloader (`bootloader/`) and the host
 //! models (`sim`): the flash memory map, where the calibration lives, the watchdog's timing and how fast the lines
-//! run. Pins, DMA streams and clocks stay in `board.rs`.
+//! run. Pins, DMA streams and clocks stay in `board.rs`. It depends on no other module of this crate (`shared`
+//! only): the task loops (`app`) use it, never the other way round.
 //!
 //! # Memory map (`docs/update.md`; RM0090 §3.3, table 5)
 //!
@@ -232,8 +233,12 @@ pub const FPGA_RX_RING_LEN: usize = 8 * 1024;
 /// DMA runs while the CPU is stalled or busy).
 pub const BUS_RX_RING_LEN: usize = 16 * 1024;
 
-/// Bytes of the largest calibration record a store programs (header, encoded table, CRC: `app::CAL_SCRATCH`).
-const RECORD_LEN_MAX: u64 = crate::app::CAL_SCRATCH as u64;
+/// Scratch for the calibration store: record header, encoded table, CRC. The storage task's buffer (`app`), and
+/// the largest record a store programs (the stall below).
+pub const CAL_SCRATCH: usize = shared::calib::encoded_len_max(shared::wire::frame::GROUPS) + 16;
+
+/// Bytes of the largest calibration record a store programs (header, encoded table, CRC: [`CAL_SCRATCH`]).
+const RECORD_LEN_MAX: u64 = CAL_SCRATCH as u64;
 
 /// Slot reads and decodes of one store, µs, bounded: `CalStore::store` reads both slots before the erase and the
 /// new record after it (three reads of ≤ 3.8 KB with a CRC-32C and a table decode, ≈ 0.1 ms each at 168 MHz;

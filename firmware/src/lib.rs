@@ -6,7 +6,8 @@
 //! - `chip` (features `chip`, `stm32`): the register-level code the bootloader shares (IWDG start, x32 flash
 //!   erases).
 //! - [`layout`]: the STM32F405 facts the loops, the models and the bootloader need (the flash memory map, the
-//!   watchdog's timing, line rates, ring sizes, the longest store stall, the stack the flight build leaves).
+//!   watchdog's timing, line rates, ring sizes, the calibration store's scratch and its longest stall, the stack the
+//!   flight build leaves); it uses no other module of this crate.
 //! - [`mcu_sensors`]: the MCU's temperature and VDDA from its ADC codes and factory calibration.
 //! - [`resets`]: the reset history kept across resets, and the crash-loop counter.
 //! - [`tasks`]: the task table, which loop each task runs with which edges of the board, for both builds.
