@@ -2,7 +2,7 @@
 //! `stm32`) spawns these loops on the STM32F405, and the host build (feature `sim`, the default) runs the very same
 //! loops on the PC with the hardware replaced at the edges ([`sim`]): the SITL binary and the scenario tests.
 //!
-//! - [`app`]: the tasks' loops and the state they share ([`app::App`]).
+//! - [`app`]: the tasks' loops, one file each, and the state they share ([`app::App`]).
 //! - `chip` (features `chip`, `stm32`): the register-level code the bootloader shares (IWDG start, x32 flash
 //!   erases).
 //! - [`layout`]: the STM32F405 facts the loops, the models and the bootloader need (the flash memory map, the

@@ -32,11 +32,11 @@ INJECT_KEY = 0x1A7E_C7ED
 INJECT_SYMBOL = "FDIR_INJECT"
 IWDG_TIMEOUT_S = 8.0  # docs/firmware.md: 8 s at 32 kHz nominal
 FEED_PERIOD_S = 0.25  # the watchdog task's period
-# firmware/src/app.rs DEADLINES_MS, read from the source (TaskId order: Link, FpgaCtrl, BusRx, BusTx, Storage,
+# firmware/src/app/mod.rs DEADLINES_MS, read from the source (TaskId order: Link, FpgaCtrl, BusRx, BusTx, Storage,
 # Watchdog, Housekeeping, Pps)
 def _deadlines() -> dict:
     import re
-    src = (Path(__file__).resolve().parents[2] / "firmware/src/app.rs").read_text()
+    src = (Path(__file__).resolve().parents[2] / "firmware/src/app/mod.rs").read_text()
     ms = re.search(r"pub const DEADLINES_MS: \[u32; TASKS\] = \[([^\]]*)\]", src).group(1)
     names = ["Link", "FpgaCtrl", "BusRx", "BusTx", "Storage", "Watchdog", "Housekeeping", "Pps"]
     return {n: int(v.replace("_", "")) / 1000 for n, v in zip(names, ms.split(","), strict=True)}
