@@ -169,10 +169,10 @@ pub fn model_covariance(axis: &AxisModel, tau_s: f64, rate_hz: f64) -> DMatrix<f
     let band = axis.low_pass(rate_hz);
     let mut c = DMatrix::zeros(n, n);
     for (i, s) in axis.sensors.iter().enumerate() {
-        c[(i, i)] = s.independent.avar_band_limited(tau_s, band.as_ref());
+        c[(i, i)] = s.independent.avar(tau_s, 1.0 / rate_hz, band.as_ref());
     }
     for p in &axis.shared {
-        let v = p.terms.avar_band_limited(tau_s, band.as_ref());
+        let v = p.terms.avar(tau_s, 1.0 / rate_hz, band.as_ref());
         let members: Vec<usize> = (0..n)
             .filter(|&i| p.groups.contains(&axis.sensors[i].group))
             .collect();

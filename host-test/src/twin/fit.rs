@@ -3,27 +3,29 @@
 //!
 //! - **Thermal**: each sensor's coefficient is the diagnosis's; the sensors' series are fitted with
 //!   `β·(T − T_ref)` removed, so that the temperature is not counted twice (once in β, once as random walk).
-//! - **Typical sensor**: five terms (Q, N, B, K, R) fitted to the per-τ median of the sensors' octave Allan
-//!   deviations, the median scaled to a mean (χ² of the EDF), as the diagnosis does.
+//! - **Typical sensor**: five terms (Q, N, B, K, R) and 0–2 Gauss–Markov terms ([`super::terms_fit`]: their count
+//!   chosen on the record's halves) fitted to the per-τ median of the sensors' octave Allan deviations, the median
+//!   scaled to a mean (χ² of the EDF), as the diagnosis does.
 //! - **Own terms**: where the diagnosis found unequal sensors (`unequal_noise`, `outlier_sensor`), the typical terms
 //!   scaled by its per-sensor level factors; else the typical terms: a five-term fit per sensor would copy each
 //!   sensor's long-τ estimation error (a handful of blocks) into the twin.
-//! - **Shared processes**: the terms the diagnosis fitted to each shared process; a member's independent terms are
-//!   its own less the processes it shares, term by term.
+//! - **Shared processes**: refitted on the whole record from the members' mean as the typical sensor (Gauss–Markov
+//!   terms included); a member's independent terms are its own less the processes it shares, term by term.
 //! - **One sensor's drift** (`sensor_drift`): the Allan-variance terms the diagnosis added to that sensor, added to
 //!   its own terms.
 //! - **Deterministic parts**, taken out of the series before any noise term is fitted: bias steps (`bias_step`) as
 //!   the diagnosis measured them; sinusoids (`periodic`) at the diagnosis's period, their amplitude and phase
-//!   refitted by least squares on the whole record (on the members' mean for a shared one).
+//!   refitted by least squares on the whole record (on the members' mean for a shared one); a sensor's own line
+//!   removed window by window and played at the windows' power (`remove_line`).
 //! - **Temperature**: a line and up to two sinusoids (periods found by a least-squares scan), the rest as noise
 //!   terms ([`fit_temperature`]).
 
+use super::terms_fit::{self, Obs, Spec};
 use super::*;
 use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, TauSpec};
 use crate::diagnose::median_to_mean;
 use crate::diagnose::model::{Cross, Terms};
 use crate::diagnose::{AxisFit, Report};
-use crate::noisefit::LowPass;
 use crate::recording::Recording;
 use crate::stats::median;
 
@@ -127,29 +129,32 @@ fn fit_axis(
     let beta = thermal_coefficients(af, ns);
     let mut cleaned = without_thermal(&series, &beta, temp, t_ref);
     let det = remove_deterministic(&mut cleaned, af, steps, tau0);
-    let points: Vec<Vec<AnalysisPoint>> = cleaned
-        .iter()
-        .map(|s| {
-            an.analyze(
-                DevKind::Oadev,
-                s,
-                tau0,
-                &TauSpec::Octave,
-                &AllanOptions::default(),
-            )
-        })
-        .collect();
+    let curves = SensorCurves::of(&cleaned, tau0, an);
     let band = af.bandwidth.as_ref();
-    let typical = fit_terms(&typical_points(&points), band);
+    let spec = Spec {
+        tau0_s: tau0,
+        band,
+        five: true,
+    };
+    let typical = terms_fit::fit(
+        &Obs::of(&typical_points(&curves.whole)),
+        curves
+            .halves
+            .as_ref()
+            .map(|h| h.clone().map(|x| Obs::of(&typical_points(&x))))
+            .as_ref()
+            .map(|[a, b]| [a.as_slice(), b.as_slice()]),
+        &spec,
+    );
     let own = own_terms(af, &typical, ns);
-    let mut shared = shared_processes(af, &cleaned, &own, tau0, an);
+    let mut shared = shared_processes(af, &cleaned, &own, &spec, an);
     shared.extend(det.shared_sines.into_iter().map(|p| (p, Vec::new())));
     let sensors = (0..ns)
         .map(|i| {
             let independent = shared
                 .iter()
                 .filter(|(_, members)| members.contains(&i))
-                .fold(own[i], |acc, (p, _)| acc.less(&p.terms));
+                .fold(own[i].clone(), |acc, (p, _)| acc.less(&p.terms));
             SensorModel {
                 group: af.groups[i],
                 mean: crate::stats::mean(&cleaned[i]),
@@ -238,8 +243,7 @@ fn remove_deterministic(
     for (kind, c) in &af.cross {
         match c {
             Cross::OwnSine { sensor, sine } if *sensor < ns => {
-                if let Some(s) = fit_sine(&cleaned[*sensor], sine.period_s, tau0) {
-                    subtract(&mut cleaned[*sensor], &s, tau0);
+                if let Some(s) = remove_line(&mut cleaned[*sensor], sine.period_s, tau0) {
                     det.own_sines[*sensor].push(s);
                 }
             }
@@ -262,6 +266,56 @@ fn remove_deterministic(
         }
     }
     det
+}
+
+/// Windows of a line's fit, in periods: long enough to tell the line from the noise about it, short enough to
+/// follow a line whose amplitude and phase wander.
+const LINE_WINDOW_PERIODS: f64 = 8.0;
+
+/// Takes the line of period `period_s` out of `y` and returns the tone the twin plays for it. Real lines wander (a
+/// narrow-band process: a resonance, a beat), and one least-squares tone over the whole record catches only their
+/// coherent part; so where the record holds at least two windows of [`LINE_WINDOW_PERIODS`], the line is fitted
+/// and removed window by window, and played as one tone of the windows' mean power (`mean A_w²` less the noise's
+/// bias `4σ²/n_w`, σ² the residual's variance) at the whole record's phase. A steady tone gives the same amplitude
+/// either way.
+fn remove_line(y: &mut [f64], period_s: f64, tau0: f64) -> Option<Sinusoid> {
+    let whole = fit_sine(y, period_s, tau0)?;
+    let w = ((LINE_WINDOW_PERIODS * period_s / tau0).ceil() as usize).max(16);
+    if y.len() < 2 * w {
+        subtract(y, &whole, tau0);
+        return Some(whole);
+    }
+    let mut power = Vec::new();
+    let mut counts = Vec::new();
+    for (j, chunk) in y.chunks_mut(w).enumerate() {
+        let start = j * w;
+        let m = crate::stats::mean(chunk);
+        let points = chunk
+            .iter()
+            .enumerate()
+            .map(|(k, x)| ((start + k) as f64 * tau0, x - m));
+        let Some(f) = crate::stats::fit_sinusoid(points, std::f64::consts::TAU / period_s) else {
+            continue;
+        };
+        for (k, x) in chunk.iter_mut().enumerate() {
+            let (sn, cs) = (std::f64::consts::TAU * (start + k) as f64 * tau0 / period_s).sin_cos();
+            *x -= f.sin * sn + f.cos * cs;
+        }
+        power.push(f.amplitude().powi(2));
+        counts.push(chunk.len() as f64);
+    }
+    let mu = crate::stats::mean(y);
+    let resid = crate::stats::rms(y.iter().map(|x| x - mu)).powi(2);
+    let a2 = power
+        .iter()
+        .zip(&counts)
+        .map(|(p, n)| p - 4.0 * resid / n)
+        .sum::<f64>()
+        / power.len().max(1) as f64;
+    Some(Sinusoid {
+        amplitude: a2.max(whole.amplitude * whole.amplitude).sqrt(),
+        ..whole
+    })
 }
 
 /// The least-squares sinusoid of period `period_s` through `y` (about its mean), sample k at k·`tau0`.
@@ -296,15 +350,8 @@ fn members_mean(series: &[Vec<f64>], members: &[usize]) -> Vec<f64> {
 /// into the twin), plus the slow process the diagnosis found on one sensor (`sensor_drift`).
 fn own_terms(af: &AxisFit, typical: &NoiseTerms, ns: usize) -> Vec<NoiseTerms> {
     let mut own: Vec<NoiseTerms> = match &af.level {
-        Some(q) if q.len() == ns => q
-            .iter()
-            .map(|&q| {
-                NoiseTerms::from_avar_coefficients(
-                    typical.avar_coefficients().map(|c| c * q.max(0.0)),
-                )
-            })
-            .collect(),
-        _ => vec![*typical; ns],
+        Some(q) if q.len() == ns => q.iter().map(|&q| typical.scaled(q)).collect(),
+        _ => vec![typical.clone(); ns],
     };
     for (_, c) in &af.cross {
         if let Cross::Own { sensor, part } = c
@@ -312,10 +359,46 @@ fn own_terms(af: &AxisFit, typical: &NoiseTerms, ns: usize) -> Vec<NoiseTerms> {
         {
             let mut c = o.avar_coefficients();
             c.iter_mut().zip(part.0).for_each(|(a, b)| *a += b.max(0.0));
+            let gm = std::mem::take(&mut o.gauss_markov);
             *o = NoiseTerms::from_avar_coefficients(c);
+            o.gauss_markov = gm;
         }
     }
     own
+}
+
+/// The octave Allan deviations of each sensor's series: over the whole record and over each half (none when a
+/// half is too short for three octaves).
+struct SensorCurves {
+    whole: Vec<Vec<AnalysisPoint>>,
+    halves: Option<[Vec<Vec<AnalysisPoint>>; 2]>,
+}
+
+impl SensorCurves {
+    fn of(series: &[Vec<f64>], tau0: f64, an: &mut Analyzer) -> Self {
+        let mut curves = |part: &dyn Fn(&[f64]) -> &[f64]| -> Vec<Vec<AnalysisPoint>> {
+            series.iter().map(|s| octave(an, part(s), tau0)).collect()
+        };
+        let whole = curves(&|s| s);
+        let n = series.first().map_or(0, Vec::len);
+        let halves = (n / 2 >= 32).then(|| {
+            [
+                curves(&|s: &[f64]| &s[..n / 2]),
+                curves(&|s: &[f64]| &s[n / 2..n]),
+            ]
+        });
+        Self { whole, halves }
+    }
+}
+
+fn octave(an: &mut Analyzer, s: &[f64], tau0: f64) -> Vec<AnalysisPoint> {
+    an.analyze(
+        DevKind::Oadev,
+        s,
+        tau0,
+        &TauSpec::Octave,
+        &AllanOptions::default(),
+    )
 }
 
 /// The shared processes of one axis, each with its members (indices into the axis's sensors): one per set of
@@ -325,7 +408,7 @@ fn shared_processes(
     af: &AxisFit,
     cleaned: &[Vec<f64>],
     own: &[NoiseTerms],
-    tau0: f64,
+    spec: &Spec,
     an: &mut Analyzer,
 ) -> Vec<(SharedProcess, Vec<usize>)> {
     let mut sets: Vec<(Vec<usize>, Vec<&'static str>, Terms)> = Vec::new();
@@ -354,15 +437,24 @@ fn shared_processes(
     sets.into_iter()
         .map(|(members, kinds, diag)| {
             let terms = if disjoint {
-                let pts = an.analyze(
-                    DevKind::Oadev,
-                    &members_mean(cleaned, &members),
-                    tau0,
-                    &TauSpec::Octave,
-                    &AllanOptions::default(),
-                );
+                let mean = members_mean(cleaned, &members);
+                let n = mean.len();
                 let own_of: Vec<&NoiseTerms> = members.iter().map(|&i| &own[i]).collect();
-                fit_shared(&pts, &own_of, af.bandwidth.as_ref())
+                let shared_obs = |s: &[f64], an: &mut Analyzer| {
+                    shared_part(&octave(an, s, spec.tau0_s), &own_of, spec)
+                };
+                let whole = shared_obs(&mean, an);
+                let halves = (n / 2 >= 32).then(|| {
+                    [
+                        shared_obs(&mean[..n / 2], an),
+                        shared_obs(&mean[n / 2..], an),
+                    ]
+                });
+                terms_fit::fit(
+                    &whole,
+                    halves.as_ref().map(|[a, b]| [a.as_slice(), b.as_slice()]),
+                    spec,
+                )
             } else {
                 NoiseTerms::from_avar_coefficients(diag.0)
             };
@@ -382,35 +474,31 @@ fn shared_processes(
         .collect()
 }
 
-/// The terms of a process shared by `own.len()` sensors, from the Allan variance of their mean (`points`): with a
-/// shared part S and the members' own terms O_i (which contain S), `σ²_mean = S + Σ(O_i − S)/M²`, so
-/// `S = (σ²_mean − mean(O_i)/M) / (1 − 1/M)` at each τ, fitted (five terms, non-negative, weighted by the
-/// EDF of the mean's variance). Fitted on the whole record, so that the twin's cluster matches the record's where
-/// the diagnosis's first-half shares would leave a bias of a few per cent (significant at short τ, where the EDF is
-/// in the tens of thousands).
-fn fit_shared(points: &[AnalysisPoint], own: &[&NoiseTerms], band: Option<&LowPass>) -> NoiseTerms {
+/// The Allan variance of a process shared by `own.len()` sensors, as observations, from the Allan variance of their
+/// mean (`points`): with a shared part S and the members' own terms O_i (which contain S),
+/// `σ²_mean = S + Σ(O_i − S)/M²`, so `S = (σ²_mean − mean(O_i)/M) / (1 − 1/M)` at each τ, weighted by the EDF of the
+/// mean's variance. Fitted on the whole record, so that the twin's cluster matches the record's where the
+/// diagnosis's first-half shares would leave a bias of a few per cent (significant at short τ, where the EDF is in
+/// the tens of thousands).
+fn shared_part(points: &[AnalysisPoint], own: &[&NoiseTerms], spec: &Spec) -> Vec<Obs> {
     let m = own.len() as f64;
     if m < 2.0 {
-        return NoiseTerms::default();
+        return Vec::new();
     }
-    let rows: Vec<([f64; 5], f64, f64)> = points
-        .iter()
-        .filter(|p| p.dev > 0.0 && p.dev.is_finite())
-        .map(|p| {
-            let v = p.dev * p.dev;
+    Obs::of(points)
+        .into_iter()
+        .map(|o| {
             let own_mean = own
                 .iter()
-                .map(|o| o.avar_band_limited(p.tau_s, band))
+                .map(|t| t.avar(o.tau_s, spec.tau0_s, spec.band))
                 .sum::<f64>()
                 / m;
-            let y = (v - own_mean / m) / (1.0 - 1.0 / m);
-            let edf = p.edf.unwrap_or(p.n as f64).max(1.0);
-            (basis(p.tau_s, band), y, edf / 2.0 / (v * v))
+            Obs {
+                avar: (o.avar - own_mean / m) / (1.0 - 1.0 / m),
+                ..o
+            }
         })
-        .collect();
-    crate::noisefit::nnls::<5>(&rows)
-        .map(NoiseTerms::from_avar_coefficients)
-        .unwrap_or_default()
+        .collect()
 }
 
 /// The per-τ median of the sensors' deviations, scaled to a mean (`ν / χ²_ν median`, as the diagnosis's typical
@@ -428,24 +516,6 @@ fn typical_points(points: &[Vec<AnalysisPoint>]) -> Vec<AnalysisPoint> {
             }
         })
         .collect()
-}
-
-/// The five terms fitted (non-negative least squares on the Allan variance, each point weighted by its EDF over
-/// its squared variance, as `noisefit::fit`) to octave points, seen through the sensors' low-pass response `band`
-/// when they have one (the terms are then those before the filter).
-pub fn fit_terms(points: &[AnalysisPoint], band: Option<&LowPass>) -> NoiseTerms {
-    let rows: Vec<([f64; 5], f64, f64)> = points
-        .iter()
-        .filter(|p| p.dev > 0.0 && p.dev.is_finite())
-        .map(|p| {
-            let y = p.dev * p.dev;
-            let edf = p.edf.unwrap_or(p.n as f64).max(1.0);
-            (basis(p.tau_s, band), y, edf / 2.0 / (y * y))
-        })
-        .collect();
-    crate::noisefit::nnls::<5>(&rows)
-        .map(NoiseTerms::from_avar_coefficients)
-        .unwrap_or_default()
 }
 
 fn sum_sq(v: &[f64]) -> f64 {
@@ -550,6 +620,7 @@ pub fn fit_temperature(t_s: &[f64], temp: &[f64], tau0: f64) -> TemperatureModel
             bias_instability: nf.bias_instability,
             random_walk: nf.random_walk,
             ramp: 0.0,
+            gauss_markov: Vec::new(),
         },
     }
 }

@@ -11,6 +11,7 @@
 pub mod compare;
 pub mod fit;
 pub mod play;
+pub mod terms_fit;
 
 use crate::noisefit::FLICKER_AVAR;
 use crate::recording::SensorKind;
@@ -54,8 +55,10 @@ pub enum TwinError {
     Plot(#[from] crate::plot::PlotError),
 }
 
-/// The five noise terms of one sensor axis or shared process, in physical units (gyro °/s, accelerometer g).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+/// The noise terms of one sensor axis or shared process, in physical units (gyro °/s, accelerometer g): the five
+/// IEEE Std 952 terms and up to [`GM_MAX`] first-order Gauss–Markov terms (the GMWM composite model's, for the bumps
+/// real sensors show between the white and the flicker regions).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct NoiseTerms {
     /// Quantisation Q, unit·s (Allan variance 3Q²/τ²).
     pub quantization: f64,
@@ -67,10 +70,45 @@ pub struct NoiseTerms {
     pub random_walk: f64,
     /// Ramp R, unit/s (R²τ²/2).
     pub ramp: f64,
+    /// First-order Gauss–Markov terms (AR(1) at any sampling), of the output: they are played after the axis's
+    /// bandwidth, and their Allan variance is the sampled process's, exactly.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub gauss_markov: Vec<GaussMarkov>,
+}
+
+/// Most Gauss–Markov terms a fit gives one curve.
+pub const GM_MAX: usize = 2;
+
+/// A first-order Gauss–Markov process: stationary standard deviation `sigma` (unit) and correlation time `tau_s`;
+/// sampled every τ₀ it is the AR(1) `x_{k+1} = φ·x_k + w_k`, `φ = exp(−τ₀/T)`, `var w = σ²(1 − φ²)` (exact).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct GaussMarkov {
+    /// Stationary standard deviation σ, unit.
+    pub sigma: f64,
+    /// Correlation time T, s.
+    pub tau_s: f64,
+}
+
+impl GaussMarkov {
+    /// Allan variance at `tau_s` of the process point-sampled every `tau0_s` (`sim::noise::ar1_avar`).
+    pub fn avar(&self, tau_s: f64, tau0_s: f64) -> f64 {
+        gm_basis(self.tau_s, tau_s, tau0_s) * self.sigma * self.sigma
+    }
+
+    fn is_valid(&self) -> bool {
+        self.sigma.is_finite() && self.sigma >= 0.0 && self.tau_s.is_finite() && self.tau_s > 0.0
+    }
+}
+
+/// Allan variance per unit variance of a Gauss–Markov process of correlation time `t_s`, point-sampled every
+/// `tau0_s`, at `tau_s` (`m = τ/τ₀` samples per average).
+pub fn gm_basis(t_s: f64, tau_s: f64, tau0_s: f64) -> f64 {
+    crate::sim::noise::ar1_avar(1.0, tau0_s / t_s, (tau_s / tau0_s).max(1.0))
 }
 
 impl NoiseTerms {
-    /// From the Allan-variance coefficients `[3Q², N², (2 ln2/π)B², K²/3, R²/2]` (negative ones count as 0).
+    /// From the Allan-variance coefficients `[3Q², N², (2 ln2/π)B², K²/3, R²/2]` (negative ones count as 0); no
+    /// Gauss–Markov term.
     pub fn from_avar_coefficients(c: [f64; 5]) -> Self {
         let c = c.map(|x| x.max(0.0));
         Self {
@@ -79,10 +117,11 @@ impl NoiseTerms {
             bias_instability: (c[2] / FLICKER_AVAR).sqrt(),
             random_walk: (3.0 * c[3]).sqrt(),
             ramp: (2.0 * c[4]).sqrt(),
+            gauss_markov: Vec::new(),
         }
     }
 
-    /// The Allan-variance coefficients (inverse of [`Self::from_avar_coefficients`]).
+    /// The five terms' Allan-variance coefficients (inverse of [`Self::from_avar_coefficients`]).
     pub fn avar_coefficients(&self) -> [f64; 5] {
         [
             3.0 * self.quantization.powi(2),
@@ -93,30 +132,65 @@ impl NoiseTerms {
         ]
     }
 
-    /// The Allan variance at `tau_s`.
-    pub fn avar(&self, tau_s: f64) -> f64 {
-        self.avar_band_limited(tau_s, None)
-    }
-
-    /// The Allan variance at `tau_s` of these terms seen through `low_pass` (its factor on the white term,
-    /// [`LowPass::white_factor`](crate::noisefit::LowPass::white_factor); none: [`Self::avar`]).
-    pub fn avar_band_limited(
+    /// The Allan variance at `tau_s` of these terms sampled every `tau0_s`, the white term seen through
+    /// `low_pass` when there is one (its factor [`LowPass::white_factor`](crate::noisefit::LowPass::white_factor)).
+    pub fn avar(
         &self,
         tau_s: f64,
+        tau0_s: f64,
         low_pass: Option<&crate::noisefit::LowPass>,
     ) -> f64 {
         let b = basis(tau_s, low_pass);
-        self.avar_coefficients()
+        let five: f64 = self
+            .avar_coefficients()
             .iter()
             .zip(b)
             .map(|(c, b)| c * b)
-            .sum()
+            .sum();
+        five + self
+            .gauss_markov
+            .iter()
+            .map(|g| g.avar(tau_s, tau0_s))
+            .sum::<f64>()
     }
 
-    /// These terms less `other`'s, term by term in Allan variance, none below zero.
+    /// These terms less `other`'s, term by term in Allan variance, none below zero (a Gauss–Markov term less one of
+    /// `other`'s at the same correlation time; `other`'s others are not subtracted).
     pub fn less(&self, other: &NoiseTerms) -> NoiseTerms {
         let (a, b) = (self.avar_coefficients(), other.avar_coefficients());
-        Self::from_avar_coefficients([0, 1, 2, 3, 4].map(|k| a[k] - b[k]))
+        let mut d = Self::from_avar_coefficients([0, 1, 2, 3, 4].map(|k| a[k] - b[k]));
+        d.gauss_markov = self
+            .gauss_markov
+            .iter()
+            .map(|g| {
+                let same = other
+                    .gauss_markov
+                    .iter()
+                    .filter(|o| (o.tau_s / g.tau_s - 1.0).abs() < 1e-9)
+                    .map(|o| o.sigma * o.sigma)
+                    .sum::<f64>();
+                GaussMarkov {
+                    sigma: (g.sigma * g.sigma - same).max(0.0).sqrt(),
+                    tau_s: g.tau_s,
+                }
+            })
+            .filter(|g| g.sigma > 0.0)
+            .collect();
+        d
+    }
+
+    /// These terms scaled by `q` in Allan variance (every level by `√q`).
+    pub fn scaled(&self, q: f64) -> NoiseTerms {
+        let mut t = Self::from_avar_coefficients(self.avar_coefficients().map(|c| c * q.max(0.0)));
+        t.gauss_markov = self
+            .gauss_markov
+            .iter()
+            .map(|g| GaussMarkov {
+                sigma: g.sigma * q.max(0.0).sqrt(),
+                tau_s: g.tau_s,
+            })
+            .collect();
+        t
     }
 
     fn is_valid(&self) -> bool {
@@ -129,6 +203,7 @@ impl NoiseTerms {
         ]
         .iter()
         .all(|x| x.is_finite() && *x >= 0.0)
+            && self.gauss_markov.iter().all(GaussMarkov::is_valid)
     }
 }
 

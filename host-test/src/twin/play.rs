@@ -1,7 +1,8 @@
 //! A synthetic recording of the modelled cluster: each sensor is its mean, its own noise (the simulator's
 //! generators: `sim::noise::SensorNoise` for Q, N, B and K; the ramp R as a line), its thermal coefficient times
 //! the temperature's departure from the reference, its own sinusoids and bias steps, and the shared processes it
-//! belongs to (one realisation per process, added to every member; a shared sinusoid is the same on every member).
+//! belongs to (one realisation per process, added to every member; a shared sinusoid is the same on every member),
+//! the whole through the axis's bandwidth; then the Gauss–Markov terms (own and shared), exact AR(1), of the output.
 //! Without effects, every sensor plays the typical terms alone: the √N model the diagnosis starts from.
 
 use super::*;
@@ -60,6 +61,29 @@ fn noise(
             .for_each(|(k, x)| *x += terms.ramp * k as f64 * dt);
     }
     Ok(v)
+}
+
+/// Adds the Gauss–Markov terms `gm` to `out` (each its own stream of `seed`; the simulator's exact AR(1),
+/// started stationary).
+fn add_gauss_markov(
+    out: &mut [f64],
+    gm: &[GaussMarkov],
+    sampling: &Sampling,
+    seed: u64,
+) -> Result<(), TwinError> {
+    let mut v = vec![0.0; out.len()];
+    for (k, g) in gm.iter().enumerate() {
+        let params = NoiseParams {
+            gm_sigma: g.sigma,
+            gm_tau_s: g.tau_s,
+            ..NoiseParams::default()
+        };
+        SensorNoise::new(&params, sampling, mix(seed, k as u64, 0x6A, 0))
+            .map_err(|e| TwinError::Invalid(e.to_string()))?
+            .fill(&mut v);
+        out.iter_mut().zip(&v).for_each(|(x, y)| *x += y);
+    }
+    Ok(())
 }
 
 /// The model's temperature, `n` samples at `dt`.
@@ -151,6 +175,17 @@ pub fn play(model: &ClusterModel, opts: &PlayOptions) -> Result<Recording, TwinE
                 })
                 .collect::<Result<_, TwinError>>()?
         };
+        let shared_gm: Vec<(Vec<f64>, &SharedProcess)> = shared
+            .iter()
+            .enumerate()
+            .filter(|(_, (_, p))| !p.terms.gauss_markov.is_empty())
+            .map(|(pi, (_, p))| {
+                let mut series = vec![0.0; n];
+                let seed = mix(opts.seed, 1 + ai as u64, 1000 + pi as u64, 2);
+                add_gauss_markov(&mut series, &p.terms.gauss_markov, &sampling, seed)?;
+                Ok((series, *p))
+            })
+            .collect::<Result<_, TwinError>>()?;
         for s in &axis.sensors {
             let own = if opts.without_effects {
                 &axis.typical
@@ -182,6 +217,14 @@ pub fn play(model: &ClusterModel, opts: &PlayOptions) -> Result<Recording, TwinE
             // The sensor's bandwidth is part of its noise model (the √N model's too), not an effect.
             if let Some(l) = axis.low_pass(rate) {
                 l.filter(&mut data);
+            }
+            // Gauss–Markov terms are of the output: after the filter (`NoiseTerms::gauss_markov`).
+            let seed = mix(opts.seed, 1 + ai as u64, s.group as u64, 2);
+            add_gauss_markov(&mut data, &own.gauss_markov, &sampling, seed)?;
+            for (series, p) in &shared_gm {
+                if p.groups.contains(&s.group) {
+                    data.iter_mut().zip(series).for_each(|(x, y)| *x += y);
+                }
             }
             columns.push(Column {
                 group: s.group,

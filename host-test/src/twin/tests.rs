@@ -8,6 +8,7 @@ fn terms(white: f64, flicker: f64, rw: f64) -> NoiseTerms {
         bias_instability: flicker,
         random_walk: rw,
         ramp: 0.0,
+        gauss_markov: Vec::new(),
     }
 }
 
@@ -25,7 +26,18 @@ fn model() -> ClusterModel {
             .map(|&g| SensorModel {
                 group: g,
                 mean: 0.1 * g as f64,
-                independent: terms(0.01, 0.001, 1e-5),
+                independent: NoiseTerms {
+                    // A bump of its own on the last part (played after the 1-Hz pole).
+                    gauss_markov: if g == 5 {
+                        vec![GaussMarkov {
+                            sigma: 0.01,
+                            tau_s: 0.4,
+                        }]
+                    } else {
+                        Vec::new()
+                    },
+                    ..terms(0.01, 0.001, 1e-5)
+                },
                 thermal_per_c: 0.0,
                 sinusoids: Vec::new(),
                 steps: Vec::new(),
@@ -34,7 +46,13 @@ fn model() -> ClusterModel {
         shared: vec![SharedProcess {
             kind: "common_mode".into(),
             groups: vec![0, 1, 2, 3],
-            terms: terms(0.0, 0.004, 0.0),
+            terms: NoiseTerms {
+                gauss_markov: vec![GaussMarkov {
+                    sigma: 0.003,
+                    tau_s: 3.0,
+                }],
+                ..terms(0.0, 0.004, 0.0)
+            },
             sinusoids: Vec::new(),
         }],
         bandwidth_hz: Some(1.0),
@@ -118,6 +136,7 @@ fn noise_terms_convert_and_subtract_in_variance() {
         bias_instability: 3e-3,
         random_walk: 4e-4,
         ramp: 5e-6,
+        gauss_markov: Vec::new(),
     };
     let back = NoiseTerms::from_avar_coefficients(t.avar_coefficients());
     for (a, b) in back.avar_coefficients().iter().zip(t.avar_coefficients()) {
@@ -130,10 +149,10 @@ fn noise_terms_convert_and_subtract_in_variance() {
         + 2.0 * 2f64.ln() / std::f64::consts::PI * 9e-6
         + 16e-8 * tau / 3.0
         + 25e-12 * tau * tau / 2.0;
-    assert!((t.avar(tau) / expect - 1.0).abs() < 1e-12);
+    assert!((t.avar(tau, 0.1, None) / expect - 1.0).abs() < 1e-12);
     let half = NoiseTerms {
         white: 2e-2 / 2f64.sqrt(),
-        ..t
+        ..t.clone()
     };
     let d = t.less(&half);
     assert!((d.white - 2e-2 / 2f64.sqrt()).abs() < 1e-12);
@@ -182,13 +201,15 @@ fn play_gives_the_modelled_allan_variance_and_the_shared_correlation() {
     let mut an = Analyzer::new();
     for c in rec.columns.iter().filter(|c| c.kind == SensorKind::Gyro) {
         let s = &gx.sensors[c.group];
-        let mut expect = s.independent;
+        let mut expect = s.independent.clone();
         if c.group < 4 {
             let [a, b] = [
                 expect.avar_coefficients(),
                 gx.shared[0].terms.avar_coefficients(),
             ];
+            let gm = [expect.gauss_markov, gx.shared[0].terms.gauss_markov.clone()].concat();
             expect = NoiseTerms::from_avar_coefficients([0, 1, 2, 3, 4].map(|k| a[k] + b[k]));
+            expect.gauss_markov = gm;
         }
         let mean = crate::stats::mean(&c.data);
         assert!(
@@ -207,7 +228,7 @@ fn play_gives_the_modelled_allan_variance_and_the_shared_correlation() {
                 continue;
             }
             // Through gx's 1-Hz pole: at τ₀ = 0.1 s it keeps 15 % of the white noise's Allan variance.
-            let ratio = p.dev.powi(2) / expect.avar_band_limited(p.tau_s, band.as_ref());
+            let ratio = p.dev.powi(2) / expect.avar(p.tau_s, tau0, band.as_ref());
             let sd = (2.0 / p.edf.unwrap()).sqrt();
             assert!(
                 (ratio - 1.0).abs() < 4.0 * sd + 0.05,
