@@ -43,7 +43,7 @@ pub enum Kind {
     ClockFailure = 2,
     /// [`ResetCause::Nmi`].
     Nmi = 3,
-    /// [`ResetCause::UnhandledIrq`]: words[0] = IPSR.
+    /// [`ResetCause::UnhandledIrq`]: `words[0]` = IPSR.
     UnhandledIrq = 4,
     /// [`ResetCause::Panic`]: words = line, file CRC.
     Panic = 5,
