@@ -17,19 +17,15 @@ fn diagnose_real_mimu4444_records() {
         let poses = detect_static(&m, &DetectOptions::default()).unwrap();
         let cal = calibrate_static(&poses, &StaticCalOptions::default()).unwrap();
         let table = cal.to_table::<{ host_test::load::MIMU_IMUS }>(e).unwrap();
-        let Some(p) = poses
-            .iter()
-            .max_by(|a, b| (a.end_s - a.start_s).total_cmp(&(b.end_s - b.start_s)))
-        else {
-            panic!("exp_{e}: no static interval");
-        };
         // As `ground diagnose --longest-static`: the interval's longest part without shared disturbances.
-        let (rec, disturbances) = host_test::diagnose::quiet::quiet_window(
+        let ls = host_test::diagnose::quiet::longest_static(
+            &m,
             &host_test::load::mimu_recording(&m, Some(&table)),
-            p.start_s,
-            p.end_s,
             Options::default().p_false,
-        );
+        )
+        .unwrap()
+        .unwrap_or_else(|| panic!("exp_{e}: no static interval"));
+        let (p, rec, disturbances) = (&ls, &ls.quiet, &ls.disturbances);
         eprintln!(
             "exp_{e}: static {:.3} … {:.3} s, diagnosed {:.3} … {:.3} s; disturbances {disturbances:?}",
             p.start_s,
@@ -37,7 +33,7 @@ fn diagnose_real_mimu4444_records() {
             rec.t_s[0],
             rec.t_s[rec.len() - 1]
         );
-        let r = diagnose(&rec, &Options::default()).unwrap();
+        let r = diagnose(rec, &Options::default()).unwrap();
         let effects: Vec<String> = r
             .effects
             .iter()

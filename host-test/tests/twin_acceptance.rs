@@ -327,18 +327,15 @@ fn the_twin_of_real_mimu4444_records() {
             let poses = detect_static(&m, &DetectOptions::default()).unwrap();
             let cal = calibrate_static(&poses, &StaticCalOptions::default()).unwrap();
             let table = cal.to_table::<{ host_test::load::MIMU_IMUS }>(e).unwrap();
-            let p = poses
-                .iter()
-                .max_by(|a, b| (a.end_s - a.start_s).total_cmp(&(b.end_s - b.start_s)))
-                .unwrap();
             // As `ground diagnose --longest-static`: the interval's longest part without shared disturbances.
-            host_test::diagnose::quiet::quiet_window(
+            host_test::diagnose::quiet::longest_static(
+                &m,
                 &host_test::load::mimu_recording(&m, Some(&table)),
-                p.start_s,
-                p.end_s,
                 Options::default().p_false,
             )
-            .0
+            .unwrap()
+            .unwrap()
+            .quiet
         })
         .collect();
     let (mut with_total, mut without_total) = (0, 0);

@@ -194,27 +194,43 @@ fn recording_of(
     Ok(Recording::from_group_columns(t, columns))
 }
 
-/// The diagnosis `ground diagnose` runs, and its recording.
+/// The diagnosis `ground diagnose` runs, and its recording; with `longest_static` (a MIMU4444 stream's path), of
+/// its longest static interval's longest quiet part, as `ground diagnose --longest-static`.
 fn run_diagnose(
     py: Python<'_>,
     source: &Bound<'_, PyAny>,
     rate: Option<f64>,
+    longest_static: bool,
 ) -> PyResult<(Recording, diag::Report)> {
-    let rec = recording_of(py, source, rate)?;
+    let mut rec = recording_of(py, source, rate)?;
+    if longest_static {
+        let path: PathBuf = source
+            .extract()
+            .map_err(|_| Error::new_err("longest_static needs the path of a MIMU4444 stream"))?;
+        let m = host_test::formats::mimu::read(&path).map_err(lib_err)?;
+        let opts = diag::Options::default();
+        rec = diag::quiet::longest_static(&m, &rec, opts.p_false)
+            .map_err(lib_err)?
+            .ok_or_else(|| Error::new_err("no static interval found"))?
+            .quiet;
+    }
     let r = diag::diagnose(&rec, &diag::Options::default()).map_err(lib_err)?;
     Ok((rec, r))
 }
 
 /// Sim-to-real diagnosis of a static cluster recording (`ground diagnose`): a path, or a (samples × columns) array
-/// in group order with `rate` in Hz. Returns the dict `ground diagnose --json` writes.
+/// in group order with `rate` in Hz; `longest_static=True` (a MIMU4444 stream) diagnoses its longest static
+/// interval's longest quiet part, as `ground diagnose --longest-static`. Returns the dict `ground diagnose --json`
+/// writes.
 #[pyfunction]
-#[pyo3(signature = (path_or_array, rate=None))]
+#[pyo3(signature = (path_or_array, rate=None, longest_static=false))]
 fn diagnose<'py>(
     py: Python<'py>,
     path_or_array: &Bound<'py, PyAny>,
     rate: Option<f64>,
+    longest_static: bool,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let (_, r) = run_diagnose(py, path_or_array, rate)?;
+    let (_, r) = run_diagnose(py, path_or_array, rate, longest_static)?;
     json_to_py(py, &serde_json::to_string(&r).map_err(lib_err)?)
 }
 
@@ -235,12 +251,17 @@ impl Model {
         })
     }
 
-    /// Fits the model of a static recording (path, or array with `rate`), as `ground diagnose --model` does.
+    /// Fits the model of a static recording (path, or array with `rate`), as `ground diagnose --model` does
+    /// (`longest_static`: as [`diagnose`]'s).
     #[staticmethod]
-    #[pyo3(signature = (path_or_array, rate=None))]
-    fn fit(path_or_array: &Bound<'_, PyAny>, rate: Option<f64>) -> PyResult<Self> {
+    #[pyo3(signature = (path_or_array, rate=None, longest_static=false))]
+    fn fit(
+        path_or_array: &Bound<'_, PyAny>,
+        rate: Option<f64>,
+        longest_static: bool,
+    ) -> PyResult<Self> {
         let py = path_or_array.py();
-        let (rec, r) = run_diagnose(py, path_or_array, rate)?;
+        let (rec, r) = run_diagnose(py, path_or_array, rate, longest_static)?;
         let source = path_or_array.str()?.to_string();
         Ok(Model {
             inner: twin::fit(&rec, &r, &source).map_err(lib_err)?,

@@ -148,3 +148,16 @@ def test_real_mimu4444_allan_matches_allantools():
     worst = max_rel(ours["dev"], dev)
     print(f"MIMU4444 exp_1 g00x: max relative difference {worst:.3e}")
     assert worst <= 1e-9
+
+
+@pytest.mark.skipif(not (MIMU / "exp_5" / "data.bin").exists(), reason=f"real MIMU4444 data absent ({MIMU})")
+def test_longest_static_diagnosis_is_the_cli_json(ground, work):
+    # exp_5's longest static interval holds a knock (a shared disturbance): both sides diagnose its quiet part.
+    stream = MIMU / "exp_5" / "data.bin"
+    j = work / "diag-exp5.json"
+    ground("diagnose", stream, "--longest-static", "--json", j, "--out", work / "diag-exp5")
+    got = imu_cluster.diagnose(stream, longest_static=True)
+    assert got == json.loads(j.read_text())
+    assert got["samples"] < 1900  # 26.1 s of the 29.2-s interval at 62.5 Hz, not the whole stream
+    with pytest.raises(imu_cluster.Error, match="MIMU4444"):
+        imu_cluster.diagnose(np.zeros((100, 6)), rate=10.0, longest_static=True)

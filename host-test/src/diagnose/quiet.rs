@@ -155,6 +155,46 @@ pub fn quiet_window(
     (w.window(a, past(&w, b)), found)
 }
 
+/// What `ground diagnose --longest-static` diagnoses of a MIMU4444 stream: its longest static interval (found as
+/// `calibrate --static` finds poses) and that interval's longest quiet part.
+#[derive(Clone, Debug)]
+pub struct LongestStatic {
+    /// Start of the longest static interval, s (the stream's time).
+    pub start_s: f64,
+    /// Its end, s.
+    pub end_s: f64,
+    /// Static intervals (poses) in the stream.
+    pub poses: usize,
+    /// The interval's longest part without shared disturbances (the whole interval when it has none).
+    pub quiet: Recording,
+    /// The shared disturbances inside the interval (times from its start).
+    pub disturbances: Vec<Disturbance>,
+}
+
+/// The longest static interval of `stream` and its longest quiet part of `rec` (the same stream loaded as a
+/// recording, through whichever calibration); `None` when the stream holds no static interval.
+pub fn longest_static(
+    stream: &crate::formats::mimu::Recording,
+    rec: &Recording,
+    p_false: f64,
+) -> Result<Option<LongestStatic>, crate::calibrate::CalibError> {
+    let poses = crate::calibrate::detect_static(stream, &Default::default())?;
+    let Some(p) = poses
+        .iter()
+        .max_by(|x, y| (x.end_s - x.start_s).total_cmp(&(y.end_s - y.start_s)))
+    else {
+        return Ok(None);
+    };
+    let (quiet, disturbances) = quiet_window(rec, p.start_s, p.end_s, p_false);
+    Ok(Some(LongestStatic {
+        start_s: p.start_s,
+        end_s: p.end_s,
+        poses: poses.len(),
+        quiet,
+        disturbances,
+    }))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

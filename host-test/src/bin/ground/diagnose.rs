@@ -64,29 +64,25 @@ pub fn run(a: Args) -> Result<()> {
     if a.longest_static {
         let m = host_test::formats::mimu::read(&a.recording)
             .map_err(|e| anyhow::anyhow!("--longest-static needs a MIMU4444 stream: {e}"))?;
-        let poses = host_test::calibrate::detect_static(&m, &Default::default())
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        let p = poses
-            .iter()
-            .max_by(|x, y| (x.end_s - x.start_s).total_cmp(&(y.end_s - y.start_s)))
+        let p_false = Options::default().p_false;
+        let ls = diagnose::quiet::longest_static(&m, &loaded.recording, p_false)
+            .map_err(|e| anyhow::anyhow!("{e}"))?
             .context("no static interval found")?;
-        // Through `suspend`, as above: `pb.println` prints nothing when stderr is not a terminal.
+        // Through `suspend`: `pb.println` prints nothing when stderr is not a terminal.
         pb.suspend(|| {
             println!(
                 "longest static interval: {:.3} … {:.3} s ({:.1} s of {} poses)",
-                p.start_s,
-                p.end_s,
-                p.end_s - p.start_s,
-                poses.len()
+                ls.start_s,
+                ls.end_s,
+                ls.end_s - ls.start_s,
+                ls.poses
             )
         });
-        let p_false = Options::default().p_false;
-        let (quiet, found) =
-            diagnose::quiet::quiet_window(&loaded.recording, p.start_s, p.end_s, p_false);
+        let (quiet, found) = (ls.quiet, ls.disturbances);
         if found.is_empty() {
             loaded.recording = quiet;
         } else if a.keep_disturbances {
-            loaded.recording = diagnose::quiet::interval(&loaded.recording, p.start_s, p.end_s);
+            loaded.recording = diagnose::quiet::interval(&loaded.recording, ls.start_s, ls.end_s);
         } else {
             let (t0, t1) = (
                 quiet.t_s.first().copied().unwrap_or(f64::NAN),
@@ -98,8 +94,8 @@ pub fn run(a: Args) -> Result<()> {
                         "shared disturbance: {} {} at {:.3} … {:.3} s, variance ×{:.1} (threshold ×{:.2})",
                         d.sensor,
                         d.axis,
-                        p.start_s + d.start_s,
-                        p.start_s + d.end_s,
+                        ls.start_s + d.start_s,
+                        ls.start_s + d.end_s,
                         d.variance_ratio,
                         d.threshold
                     );
