@@ -129,23 +129,16 @@ fn fit_axis(
     let beta = thermal_coefficients(af, ns);
     let mut cleaned = without_thermal(&series, &beta, temp, t_ref);
     let det = remove_deterministic(&mut cleaned, af, steps, tau0);
-    let curves = SensorCurves::of(&cleaned, tau0, an);
     let band = af.bandwidth.as_ref();
-    let spec = Spec {
-        tau0_s: tau0,
-        band,
-        five: true,
-    };
-    let typical = terms_fit::fit(
-        &Obs::of(&typical_points(&curves.whole)),
-        curves
-            .halves
-            .as_ref()
-            .map(|h| h.clone().map(|x| Obs::of(&typical_points(&x))))
-            .as_ref()
-            .map(|[a, b]| [a.as_slice(), b.as_slice()]),
-        &spec,
-    );
+    let spec = Spec { tau0_s: tau0, band };
+    let (whole, halves) = whole_and_halves(cleaned.first().map_or(0, Vec::len), |r| {
+        let points: Vec<Vec<AnalysisPoint>> = cleaned
+            .iter()
+            .map(|s| octave(an, &s[r.clone()], tau0))
+            .collect();
+        Obs::of(&typical_points(&points))
+    });
+    let typical = terms_fit::fit(&whole, as_slices(&halves), &spec);
     let own = own_terms(af, &typical, ns);
     let mut shared = shared_processes(af, &cleaned, &own, &spec, an);
     shared.extend(det.shared_sines.into_iter().map(|p| (p, Vec::new())));
@@ -285,8 +278,8 @@ fn remove_line(y: &mut [f64], period_s: f64, tau0: f64) -> Option<Sinusoid> {
         subtract(y, &whole, tau0);
         return Some(whole);
     }
-    let mut power = Vec::new();
-    let mut counts = Vec::new();
+    // Per window: (fitted power A_w², samples n_w).
+    let mut windows: Vec<(f64, f64)> = Vec::new();
     for (j, chunk) in y.chunks_mut(w).enumerate() {
         let start = j * w;
         let m = crate::stats::mean(chunk);
@@ -301,17 +294,15 @@ fn remove_line(y: &mut [f64], period_s: f64, tau0: f64) -> Option<Sinusoid> {
             let (sn, cs) = (std::f64::consts::TAU * (start + k) as f64 * tau0 / period_s).sin_cos();
             *x -= f.sin * sn + f.cos * cs;
         }
-        power.push(f.amplitude().powi(2));
-        counts.push(chunk.len() as f64);
+        windows.push((f.amplitude().powi(2), chunk.len() as f64));
     }
     let mu = crate::stats::mean(y);
     let resid = crate::stats::rms(y.iter().map(|x| x - mu)).powi(2);
-    let a2 = power
+    let a2 = windows
         .iter()
-        .zip(&counts)
         .map(|(p, n)| p - 4.0 * resid / n)
         .sum::<f64>()
-        / power.len().max(1) as f64;
+        / windows.len().max(1) as f64;
     Some(Sinusoid {
         amplitude: a2.max(whole.amplitude * whole.amplitude).sqrt(),
         ..whole
@@ -359,36 +350,29 @@ fn own_terms(af: &AxisFit, typical: &NoiseTerms, ns: usize) -> Vec<NoiseTerms> {
         {
             let mut c = o.avar_coefficients();
             c.iter_mut().zip(part.0).for_each(|(a, b)| *a += b.max(0.0));
-            let gm = std::mem::take(&mut o.gauss_markov);
-            *o = NoiseTerms::from_avar_coefficients(c);
-            o.gauss_markov = gm;
+            *o = NoiseTerms {
+                gauss_markov: std::mem::take(&mut o.gauss_markov),
+                ..NoiseTerms::from_avar_coefficients(c)
+            };
         }
     }
     own
 }
 
-/// The octave Allan deviations of each sensor's series: over the whole record and over each half (none when a
-/// half is too short for three octaves).
-struct SensorCurves {
-    whole: Vec<Vec<AnalysisPoint>>,
-    halves: Option<[Vec<Vec<AnalysisPoint>>; 2]>,
+/// `f` of the whole record's sample range and of each half's (none when a half is shorter than 32 samples: too
+/// few octaves to choose terms on).
+fn whole_and_halves<T>(
+    n: usize,
+    mut f: impl FnMut(std::ops::Range<usize>) -> T,
+) -> (T, Option<[T; 2]>) {
+    let whole = f(0..n);
+    let halves = (n / 2 >= 32).then(|| [f(0..n / 2), f(n / 2..n)]);
+    (whole, halves)
 }
 
-impl SensorCurves {
-    fn of(series: &[Vec<f64>], tau0: f64, an: &mut Analyzer) -> Self {
-        let mut curves = |part: &dyn Fn(&[f64]) -> &[f64]| -> Vec<Vec<AnalysisPoint>> {
-            series.iter().map(|s| octave(an, part(s), tau0)).collect()
-        };
-        let whole = curves(&|s| s);
-        let n = series.first().map_or(0, Vec::len);
-        let halves = (n / 2 >= 32).then(|| {
-            [
-                curves(&|s: &[f64]| &s[..n / 2]),
-                curves(&|s: &[f64]| &s[n / 2..n]),
-            ]
-        });
-        Self { whole, halves }
-    }
+/// The halves as the slices [`terms_fit::fit`] takes.
+fn as_slices(halves: &Option<[Vec<Obs>; 2]>) -> Option<[&[Obs]; 2]> {
+    halves.as_ref().map(|[a, b]| [a.as_slice(), b.as_slice()])
 }
 
 fn octave(an: &mut Analyzer, s: &[f64], tau0: f64) -> Vec<AnalysisPoint> {
@@ -438,23 +422,11 @@ fn shared_processes(
         .map(|(members, kinds, diag)| {
             let terms = if disjoint {
                 let mean = members_mean(cleaned, &members);
-                let n = mean.len();
                 let own_of: Vec<&NoiseTerms> = members.iter().map(|&i| &own[i]).collect();
-                let shared_obs = |s: &[f64], an: &mut Analyzer| {
-                    shared_part(&octave(an, s, spec.tau0_s), &own_of, spec)
-                };
-                let whole = shared_obs(&mean, an);
-                let halves = (n / 2 >= 32).then(|| {
-                    [
-                        shared_obs(&mean[..n / 2], an),
-                        shared_obs(&mean[n / 2..], an),
-                    ]
+                let (whole, halves) = whole_and_halves(mean.len(), |r| {
+                    shared_part(&octave(an, &mean[r], spec.tau0_s), &own_of, spec)
                 });
-                terms_fit::fit(
-                    &whole,
-                    halves.as_ref().map(|[a, b]| [a.as_slice(), b.as_slice()]),
-                    spec,
-                )
+                terms_fit::fit(&whole, as_slices(&halves), spec)
             } else {
                 NoiseTerms::from_avar_coefficients(diag.0)
             };

@@ -65,8 +65,6 @@ pub struct Spec<'a> {
     pub tau0_s: f64,
     /// The sensors' single-pole response, seen by the white term.
     pub band: Option<&'a LowPass>,
-    /// Fit the five terms too (else only Gauss–Markov terms: an excess over a known curve).
-    pub five: bool,
 }
 
 /// The terms of `whole`, the Gauss–Markov count chosen on `halves` (module docs).
@@ -85,8 +83,7 @@ const HELD_OUT_GAIN_MIN: f64 = 6.0;
 /// cost by [`HELD_OUT_GAIN_MIN`].
 fn chosen_count(a: &[Obs], b: &[Obs], spec: &Spec) -> usize {
     let mut best = (f64::INFINITY, 0);
-    let max = if spec.five { GM_MAX } else { GM_MAX.min(1) };
-    for k in 0..=max {
+    for k in 0..=GM_MAX {
         let cost = [(a, b), (b, a)]
             .iter()
             .map(|(fit_on, score_on)| {
@@ -103,11 +100,8 @@ fn chosen_count(a: &[Obs], b: &[Obs], spec: &Spec) -> usize {
 
 /// The misfit of `terms` on held-out `obs`: `Σ (ν/2)·ln²(model/observed)` (each point's log Allan variance has
 /// variance 2/ν), which, unlike the fit's cost, does not favour a model that dips under the low points; where an
-/// observation or the model is not positive (an excess over a known curve), the fit's cost.
+/// observation or the model is not positive, the fit's weighted squared misfit.
 fn held_out_cost(terms: &NoiseTerms, obs: &[Obs], spec: &Spec) -> f64 {
-    if !spec.five {
-        return cost(terms, obs, spec);
-    }
     obs.iter()
         .map(|o| {
             let m = terms.avar(o.tau_s, spec.tau0_s, spec.band);
@@ -124,18 +118,7 @@ fn held_out_cost(terms: &NoiseTerms, obs: &[Obs], spec: &Spec) -> f64 {
 /// The weighted squared misfit of `terms` on `obs`.
 fn cost(terms: &NoiseTerms, obs: &[Obs], spec: &Spec) -> f64 {
     obs.iter()
-        .map(|o| {
-            let m = if spec.five {
-                terms.avar(o.tau_s, spec.tau0_s, spec.band)
-            } else {
-                terms
-                    .gauss_markov
-                    .iter()
-                    .map(|g| g.avar(o.tau_s, spec.tau0_s))
-                    .sum()
-            };
-            o.weight * (m - o.avar).powi(2)
-        })
+        .map(|o| o.weight * (terms.avar(o.tau_s, spec.tau0_s, spec.band) - o.avar).powi(2))
         .sum()
 }
 
@@ -177,19 +160,11 @@ fn fit_count(obs: &[Obs], k: usize, spec: &Spec) -> Option<(NoiseTerms, f64)> {
 
 /// Non-negative least squares with Gauss–Markov terms at `times`: (terms, cost).
 fn solve(obs: &[Obs], times: &[f64], spec: &Spec) -> Option<(NoiseTerms, f64)> {
-    if !spec.five && times.is_empty() {
-        return Some((
-            NoiseTerms::default(),
-            cost(&NoiseTerms::default(), obs, spec),
-        ));
-    }
     let rows: Vec<([f64; COLS], f64, f64)> = obs
         .iter()
         .map(|o| {
             let mut r = [0.0; COLS];
-            if spec.five {
-                r[..5].copy_from_slice(&basis(o.tau_s, spec.band));
-            }
+            r[..5].copy_from_slice(&basis(o.tau_s, spec.band));
             for (x, &t) in r[5..].iter_mut().zip(times) {
                 *x = gm_basis(t, o.tau_s, spec.tau0_s);
             }
@@ -245,7 +220,6 @@ mod tests {
         Spec {
             tau0_s: TAU0,
             band: None,
-            five: true,
         }
     }
 
