@@ -55,7 +55,17 @@ fn frame(seq: u16) -> FrameRepr {
 }
 
 fn main() {
-    // messages: [kind] ++ encoded message.
+    let table = messages();
+    let frames = wire_decoder();
+    bus();
+    storage(&table);
+    pipeline(&frames);
+    mimu_reader();
+    csv_reader();
+}
+
+/// `messages`: `[kind] ++` an encoded telemetry message, command or calibration table; returns the table's bytes.
+fn messages() -> Vec<u8> {
     let fused = Telemetry::Fused(FusedReport {
         seq: 7,
         t_us: 1_000_000,
@@ -146,15 +156,23 @@ fn main() {
     let mut b = vec![3];
     b.extend(&tbytes);
     put("messages", "caltable", &b);
+    tbytes
+}
 
-    // The structured targets take `'R' ++ bytes` as their raw form (see each target's `Input::raw`).
+/// `wire_decoder`: three frames, clean and damaged; returns the clean ones. (The structured targets take
+/// `'R' ++ bytes` as their raw form: see each target's `Input::raw`.)
+fn wire_decoder() -> Vec<u8> {
     let frames: Vec<u8> = (0..3u16).flat_map(|s| frame(s).to_bytes()).collect();
     put("wire_decoder", "three-frames", &raw(&frames));
     let mut noisy = vec![0x55; 10];
     noisy.extend(&frames);
     noisy[40] ^= 0xFF;
     put("wire_decoder", "damaged", &raw(&noisy));
+    frames
+}
 
+/// `bus`: KISS-framed CSP packets (a command, a ping with CRC, another port).
+fn bus() {
     let cfg = BusConfig::DEFAULT;
     let mut out = [0u8; MAX_WIRE_FRAME];
     let mut bus = Vec::new();
@@ -182,7 +200,11 @@ fn main() {
         bus.extend_from_slice(&out[..n]);
     }
     put("bus", "packets", &raw(&bus));
+}
 
+/// `storage`: a flash image whose slot A holds record seq u32::MAX - 1 and slot B record seq u32::MAX (the next
+/// store wraps to 0), both of the calibration table `tbytes`.
+fn storage(tbytes: &[u8]) {
     // A flash image: slot A holds record seq u32::MAX - 1, slot B record seq u32::MAX (the next store wraps to 0).
     let mut image = vec![0xFF; 2 * 3 * 1024];
     for (slot, seq) in [(0usize, u32::MAX - 1), (1, u32::MAX)] {
@@ -190,7 +212,7 @@ fn main() {
         rec.extend(shared::storage::MAGIC.to_le_bytes());
         rec.extend(seq.to_le_bytes());
         rec.extend((tbytes.len() as u32).to_le_bytes());
-        rec.extend(&tbytes);
+        rec.extend(tbytes);
         let crc = shared::crc::crc32c(&rec);
         rec.extend(crc.to_le_bytes());
         let base = slot * 3 * 1024;
@@ -199,16 +221,21 @@ fn main() {
     // Trailing erased bytes are implied: keep the seed small.
     let used = image.iter().rposition(|&b| b != 0xFF).map_or(0, |i| i + 1);
     put("storage", "two-records-at-wrap", &raw(&image[..used]));
+}
 
+/// `pipeline`: frames, then a command.
+fn pipeline(frames: &[u8]) {
     let mut pipe = (frames.len() as u16).to_le_bytes().to_vec();
-    pipe.extend(&frames);
+    pipe.extend(frames);
     pipe.extend(enc(&CommandEnvelope {
         tag: 9,
         cmd: Command::HealthRequest { detail: true },
     }));
     put("pipeline", "frames-and-command", &raw(&pipe));
+}
 
-    // MIMU4444: acknowledgement then consecutive frames.
+/// `mimu_reader`: the MIMU4444's acknowledgement, then consecutive frames.
+fn mimu_reader() {
     let mut mimu = ACK.to_vec();
     for k in 0..4u16 {
         let f = Frame {
@@ -222,8 +249,10 @@ fn main() {
         mimu.extend(f.encode());
     }
     put("mimu_reader", "ack-and-frames", &raw(&mimu));
+}
 
-    // Interchange CSV written by the ground tool's own writer.
+/// `csv_reader`: interchange CSV written by the ground tool's own writer, and columns in another order.
+fn csv_reader() {
     let rec = Recording {
         t_s: vec![0.0, 0.016, 0.032],
         temp_c: Some(vec![21.5, 21.5, 21.51]),

@@ -26,9 +26,16 @@ const SECTOR: usize = 1024;
 enum Req {
     Raw(Vec<u8>),
     Status,
-    Open { restart: bool, header: Vec<u8> },
+    Open {
+        restart: bool,
+        header: Vec<u8>,
+    },
     Erase(u8),
-    Chunk { offset: u16, good_crc: bool, data: Vec<u8> },
+    Chunk {
+        offset: u16,
+        good_crc: bool,
+        data: Vec<u8>,
+    },
     Verify,
     Commit,
     Confirm,
@@ -60,7 +67,11 @@ fuzz_target!(|input: Input| {
         board_id: shared::update::BOARD_ID,
         running_version: u32::from(input.running_version),
         max_image_len: 3 * SECTOR as u32,
-        writable: if input.writable { Ok(()) } else { Err(UpdateError::NotIdle) },
+        writable: if input.writable {
+            Ok(())
+        } else {
+            Err(UpdateError::NotIdle)
+        },
     };
     let mut boot = MockBoot::default();
     let mut rx = Receiver::default();
@@ -79,10 +90,17 @@ fuzz_target!(|input: Input| {
                         for (d, s) in h.iter_mut().zip(header) {
                             *d = *s;
                         }
-                        UpdateRequest::Open { header: h, restart: *restart }
+                        UpdateRequest::Open {
+                            header: h,
+                            restart: *restart,
+                        }
                     }
                     Req::Erase(s) => UpdateRequest::Erase { sector: *s },
-                    Req::Chunk { offset, good_crc, data } => {
+                    Req::Chunk {
+                        offset,
+                        good_crc,
+                        data,
+                    } => {
                         let data: heapless::Vec<u8, CHUNK_MAX> =
                             data.iter().copied().take(CHUNK_MAX).collect();
                         let crc = shared::crc::crc32c(&data);
@@ -112,12 +130,17 @@ fuzz_target!(|input: Input| {
         if boot.state == BootState::Swap && state_before != BootState::Swap {
             assert_eq!(resp.reply, UpdateReply::Committed);
             let max = ctx.max_image_len;
-            assert!(image::verify_slot(&mut dfu, &key, ctx.board_id, ctx.running_version, max).is_ok());
+            assert!(
+                image::verify_slot(&mut dfu, &key, ctx.board_id, ctx.running_version, max).is_ok()
+            );
         }
         let _ = rx.take_reset();
     }
     if !input.writable {
-        assert!(dfu.mem == before, "the slot changed while writes were refused");
+        assert!(
+            dfu.mem == before,
+            "the slot changed while writes were refused"
+        );
         assert_ne!(boot.state, BootState::Swap);
     }
 });

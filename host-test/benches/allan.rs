@@ -6,19 +6,13 @@
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use host_test::allan::{Analyzer, DevKind, Options, TauSpec};
 use host_test::formats::csv::{Recording, push_value};
+use host_test::testrng::TestRng;
 use std::hint::black_box;
 
 fn bench(c: &mut Criterion) {
     let n = 545_410;
-    let mut s = 42u64;
-    let y: Vec<f64> = (0..n)
-        .map(|_| {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        })
-        .collect();
+    let mut rng = TestRng::new(42);
+    let y: Vec<f64> = (0..n).map(|_| rng.uniform() - 0.5).collect();
     let mut g = c.benchmark_group("allan");
     g.sample_size(20);
     let mut an = Analyzer::new();
@@ -48,11 +42,8 @@ fn bench(c: &mut Criterion) {
     for row in 0..20_000 {
         text.push_str(&(row as f64 / 18.9).to_string());
         for _ in 0..96 {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
             text.push(',');
-            push_value(&mut text, (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5);
+            push_value(&mut text, rng.uniform() - 0.5);
         }
         text.push('\n');
     }

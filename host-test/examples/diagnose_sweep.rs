@@ -1,7 +1,7 @@
 //! Runs `diagnose` on simulated 16-group static records with one injected effect each and prints what it names
 //! (a development aid for the diagnosis; `cargo run --release -p host-test --example diagnose_sweep -- [SEED] [RATE] [HOURS]`).
 
-use host_test::diagnose::{Options, diagnose};
+use host_test::diagnose::{Options, Report, diagnose};
 use host_test::sim::preset::seed_config;
 use host_test::sim::{
     Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, SimConfig, Thermal,
@@ -14,6 +14,22 @@ fn main() {
     let rate: f64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(5.0);
     let hours: f64 = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(8.0);
     let only: Option<String> = args.get(4).cloned();
+    for (name, cfg) in cases(seed, rate, hours) {
+        if only.as_deref().is_some_and(|o| !name.contains(o)) {
+            continue;
+        }
+        let mut rec = recording(cfg).unwrap();
+        if name.contains("no temp") {
+            rec.temp_c = None;
+        }
+        let t = std::time::Instant::now();
+        let r = diagnose(&rec, &Options::default()).unwrap();
+        print_result(name, &r, t.elapsed().as_secs_f64());
+    }
+}
+
+/// The sweep's records: the seed experiment at `rate` Hz for `hours`, each with one injected effect (or none).
+fn cases(seed: u64, rate: f64, hours: f64) -> Vec<(&'static str, SimConfig)> {
     let base = |s: u64| {
         let mut c = seed_config(s).unwrap();
         c.rate_hz = rate;
@@ -108,73 +124,59 @@ fn main() {
     c.common.push(CommonMode::all(&Axis::ALL[..3], 0.1, 0.1));
     cases.push(("common mode gyro", c));
     let mut c = base(seed + 8);
-    c.outliers.push(Outlier {
-        group: 5,
-        channel: Channel::AccelX,
-        noise_factor: 5.0,
-        step: 0.0,
-        step_at_s: 0.0,
-        drift_per_h: 0.0,
-    });
+    c.outliers.push(Outlier::noisy(5, Channel::AccelX, 5.0));
     cases.push(("outlier g5 ax", c));
     let mut c = base(seed + 9);
     c.spread = PartSpread::unequal_noise(0.5);
     cases.push(("unequal 0.5", c));
-    for (name, cfg) in cases {
-        if only.as_deref().is_some_and(|o| !name.contains(o)) {
-            continue;
+    cases
+}
+
+/// One line per record (`DIAG_VERBOSE`: and one per axis with its τ points' z-scores).
+fn print_result(name: &str, r: &Report, el: f64) {
+    let eff: Vec<String> = r
+        .effects
+        .iter()
+        .map(|e| {
+            format!(
+                "{} {} {} {} [{} {:.0}-{:.0}s {:.2}]",
+                e.kind, e.sensor, e.axes, e.groups, e.region, e.tau_s[0], e.tau_s[1], e.share
+            )
+        })
+        .collect();
+    let h = r.heldout;
+    println!(
+        "{name:<24} {:.2}s  excess {:.3}->{:.3} ({:.0} %)  rms {:.3}->{:.3}  {}",
+        el,
+        h.gap_before,
+        h.gap_after,
+        100.0 * (1.0 - h.gap_after / h.gap_before.max(1e-12)),
+        h.rms_before,
+        h.rms_after,
+        if eff.is_empty() {
+            "none".into()
+        } else {
+            eff.join("; ")
         }
-        let mut rec = recording(cfg).unwrap();
-        if name.contains("no temp") {
-            rec.temp_c = None;
-        }
-        let t = std::time::Instant::now();
-        let r = diagnose(&rec, &Options::default()).unwrap();
-        let el = t.elapsed().as_secs_f64();
-        let eff: Vec<String> = r
-            .effects
-            .iter()
-            .map(|e| {
-                format!(
-                    "{} {} {} {} [{} {:.0}-{:.0}s {:.2}]",
-                    e.kind, e.sensor, e.axes, e.groups, e.region, e.tau_s[0], e.tau_s[1], e.share
-                )
-            })
-            .collect();
-        let h = r.heldout;
-        println!(
-            "{name:<24} {:.2}s  excess {:.3}->{:.3} ({:.0} %)  rms {:.3}->{:.3}  {}",
-            el,
-            h.gap_before,
-            h.gap_after,
-            100.0 * (1.0 - h.gap_after / h.gap_before.max(1e-12)),
-            h.rms_before,
-            h.rms_after,
-            if eff.is_empty() {
-                "none".into()
-            } else {
-                eff.join("; ")
-            }
-        );
-        if std::env::var("DIAG_VERBOSE").is_ok() {
-            for a in &r.axes {
-                let zs: Vec<String> = a
-                    .taus
-                    .iter()
-                    .map(|t| {
-                        format!(
-                            "{:.0}:{:+.1}/{:+.1}/{:+.1}",
-                            t.tau_s, t.z_before, t.cross_z, t.z_after
-                        )
-                    })
-                    .collect();
-                println!(
-                    "   {} indep p {:.2e} {}",
-                    a.axis,
-                    a.independence.p_value,
-                    zs.join(" ")
-                );
-            }
+    );
+    if std::env::var("DIAG_VERBOSE").is_ok() {
+        for a in &r.axes {
+            let zs: Vec<String> = a
+                .taus
+                .iter()
+                .map(|t| {
+                    format!(
+                        "{:.0}:{:+.1}/{:+.1}/{:+.1}",
+                        t.tau_s, t.z_before, t.cross_z, t.z_after
+                    )
+                })
+                .collect();
+            println!(
+                "   {} indep p {:.2e} {}",
+                a.axis,
+                a.independence.p_value,
+                zs.join(" ")
+            );
         }
     }
 }

@@ -1,19 +1,21 @@
 //! Host side of the IMU cluster: replay of recorded frames through `shared`, ground decoding, and the `ground` tool.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
+// Each module names what it imports (a glob hides where a name comes from); preludes and `use super::*` in test
+// modules are the lint's own exceptions.
+#![warn(clippy::wildcard_imports)]
 
 /// The FPGA base rate in Hz (9676.8), for the tools' options and the simulator: derived from
 /// [`shared::wire::clock::FPGA_BASE_RATE_MILLIHZ`], the one definition (the same `f64` as the literal).
 pub const FPGA_BASE_RATE_HZ: f64 = shared::wire::clock::FPGA_BASE_RATE_MILLIHZ as f64 / 1000.0;
 
-pub mod adev;
 pub mod allan;
 pub mod calibrate;
 pub mod demo;
 pub mod diagnose;
 pub mod formats;
 pub mod load;
-pub mod noisefit;
+
 pub mod plot;
 pub mod recording;
 pub mod replay;

@@ -247,7 +247,7 @@ pub fn link_warning(path: &Path, c: &shared::wire::LinkCounters, output: &str) -
 
 /// As [`load_with`], for a consumer of only the sensor columns `columns` (all when empty) and the cluster means: a
 /// `.npy` array (known by its extension) then materialises only those columns, and computes the cluster mean of
-/// every axis over all its groups in the same pass (returned, equal to `adev::cluster_mean` of the whole
+/// every axis over all its groups in the same pass (returned, equal to `allan::recording::cluster_mean` of the whole
 /// recording, while each block of the file is in the cache); any other input is loaded whole (`None`: the
 /// recording holds every column).
 pub fn load_selected(

@@ -1,7 +1,7 @@
 //! Log-log Allan-deviation plots in panels (PNG or SVG by the file's extension). Text uses DejaVu Sans, loaded at
 //! run time from the system (Debian package `fonts-dejavu-core`) or from `$GROUND_FONT`.
 
-use crate::adev;
+use crate::allan::recording;
 use crate::recording::SensorKind;
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -133,11 +133,15 @@ pub fn adev_panels(
 /// The Allan-deviation figure of `ground allan`: per sensor kind and axis a panel with the single sensors thin, the
 /// independent (√N) expectation dashed and the cluster mean bold with its confidence bars; `source` names the recording
 /// in the title.
-pub fn adev_series(path: &Path, series: &[adev::Series], source: &Path) -> Result<(), PlotError> {
+pub fn adev_series(
+    path: &Path,
+    series: &[recording::Series],
+    source: &Path,
+) -> Result<(), PlotError> {
     let mut panels = Vec::new();
     for kind in [SensorKind::Gyro, SensorKind::Accel] {
         for axis in 0..3 {
-            let singles: Vec<&adev::Series> = series
+            let singles: Vec<&recording::Series> = series
                 .iter()
                 .filter(|s| s.kind == kind && s.axis == axis && s.group.is_some())
                 .collect();
@@ -164,7 +168,7 @@ pub fn adev_series(path: &Path, series: &[adev::Series], source: &Path) -> Resul
                 );
                 curves.push(Curve {
                     label: Some(label),
-                    points: adev::independent_mean_expectation(&singles),
+                    points: recording::independent_mean_expectation(&singles),
                     bars: vec![],
                     style: Style::Dashed,
                 });

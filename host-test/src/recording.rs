@@ -61,7 +61,7 @@ impl Column {
     }
 }
 
-/// The equal-weight cluster mean of one sensor axis over the groups, row by row (what `adev::cluster_mean` computes
+/// The equal-weight cluster mean of one sensor axis over the groups, row by row (what `allan::recording::cluster_mean` computes
 /// from a recording; a reader that streams the file can compute it without keeping every column).
 #[derive(Clone, Debug, PartialEq)]
 pub struct AxisMean {

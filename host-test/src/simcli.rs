@@ -586,7 +586,7 @@ impl BandwidthFilter {
     pub fn new(bands: &[Bandwidth], rate_hz: f64) -> Self {
         let mut taps: Vec<(usize, usize, f64, Option<f64>)> = Vec::new();
         for b in bands {
-            let phi = crate::noisefit::LowPass {
+            let phi = crate::allan::noisefit::LowPass {
                 cutoff_hz: b.cutoff_hz,
                 tau0_s: 1.0 / rate_hz,
             }
@@ -614,7 +614,7 @@ impl BandwidthFilter {
                 continue;
             }
             for row in &mut chunk.phys[..len] {
-                row[*g][*a] = crate::noisefit::LowPass::step(*phi, state, row[*g][*a]);
+                row[*g][*a] = crate::allan::noisefit::LowPass::step(*phi, state, row[*g][*a]);
             }
         }
     }

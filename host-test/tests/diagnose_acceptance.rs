@@ -217,14 +217,7 @@ fn shared_flicker_component_on_gyro_y() {
 fn one_noisy_sensor() {
     let mut cfg = config(SEED + 6);
     // AVAR × (15 + 9)/16 = 1.5.
-    cfg.outliers.push(Outlier {
-        group: 9,
-        channel: Channel::AccelZ,
-        noise_factor: 3.0,
-        step: 0.0,
-        step_at_s: 0.0,
-        drift_per_h: 0.0,
-    });
+    cfg.outliers.push(Outlier::noisy(9, Channel::AccelZ, 3.0));
     let r = run(cfg, true);
     let e = only(&r, "outlier_sensor");
     assert_eq!(
@@ -364,15 +357,7 @@ fn shared_sinusoid_on_gyro_x_is_periodic_with_its_period() {
     let mut cfg = config(SEED + 22);
     // Period 600 s on gyro x of every group; at its Allan-variance peak (τ ≈ 223 s) it adds 3× the cluster's AVAR
     // there (cluster ADEV ×2), a sixteenth of that to a single sensor's.
-    let period = 600.0;
-    let amp = sinusoid(
-        &mut cfg,
-        None,
-        (Axis::GyroX, Channel::GyroAX),
-        period,
-        3.0,
-        0.7,
-    );
+    let (period, amp) = shared_gyro_x_sinusoid(&mut cfg, 3.0);
     let r = run(cfg, true);
     let e = only(&r, "periodic");
     assert_eq!(
@@ -397,16 +382,7 @@ fn period_and_amplitude(p: &serde_json::Value, period: f64, amp: f64) {
 #[test]
 fn one_accelerometers_sinusoid_is_its_own_periodic() {
     let mut cfg = config(SEED + 23);
-    // Group 7's accel y alone: period 90 s, 3× its own AVAR at the sinusoid's peak (τ ≈ 33 s).
-    let period = 90.0;
-    let amp = sinusoid(
-        &mut cfg,
-        Some(vec![7]),
-        (Axis::AccelY, Channel::AccelY),
-        period,
-        3.0 * 16.0,
-        0.0,
-    );
+    let (period, amp) = own_accel_y_sinusoid(&mut cfg);
     let r = run(cfg, true);
     let e = only(&r, "periodic");
     assert_eq!(

@@ -163,14 +163,7 @@ fn thermal_bias_of_the_accelerometers() {
 #[test]
 fn one_noisy_sensor() {
     let mut cfg = config(BASE + 5);
-    cfg.outliers.push(Outlier {
-        group: 9,
-        channel: Channel::AccelZ,
-        noise_factor: 4.0,
-        step: 0.0,
-        step_at_s: 0.0,
-        drift_per_h: 0.0,
-    });
+    cfg.outliers.push(Outlier::noisy(9, Channel::AccelZ, 4.0));
     let k = close_the_loop(cfg, &["az"]);
     assert!(k.iter().any(|k| k == "outlier_sensor"), "{k:?}");
 }
@@ -218,15 +211,7 @@ fn shared_sinusoid_on_gyro_x() {
     let mut cfg = config(BASE + 7);
     // Period 600 s on gyro x of every group, 8× the cluster's AVAR at its peak (cluster ADEV ×3: two measured
     // records compared are less sensitive than a record against its model).
-    let period = 600.0;
-    let amp = sinusoid(
-        &mut cfg,
-        None,
-        (Axis::GyroX, Channel::GyroAX),
-        period,
-        8.0,
-        0.7,
-    );
+    let (period, amp) = shared_gyro_x_sinusoid(&mut cfg, 8.0);
     let (k, model) = close_the_loop_model(cfg, &["gx"]);
     assert!(k.iter().any(|k| k == "periodic"), "{k:?}");
     let p = axis(&model, "gx")
@@ -241,16 +226,7 @@ fn shared_sinusoid_on_gyro_x() {
 #[test]
 fn one_accelerometers_sinusoid() {
     let mut cfg = config(BASE + 8);
-    // Group 7's accel y alone: period 90 s, 3× its own AVAR at the sinusoid's peak (as the diagnosis's test).
-    let period = 90.0;
-    let amp = sinusoid(
-        &mut cfg,
-        Some(vec![7]),
-        (Axis::AccelY, Channel::AccelY),
-        period,
-        3.0 * 16.0,
-        0.0,
-    );
+    let (period, amp) = own_accel_y_sinusoid(&mut cfg);
     // One sensor in 16: the cluster and the typical sensor barely see it, so the twin without it is not refuted.
     let (k, model) = close_the_loop_model(cfg, &[]);
     assert!(k.iter().any(|k| k == "periodic"), "{k:?}");

@@ -1,6 +1,6 @@
 //! Chi-squared confidence intervals for a deviation.
 
-use statrs::distribution::{ChiSquared, Continuous, ContinuousCDF};
+use statrs::distribution::{ChiSquared, Continuous, ContinuousCDF, Normal};
 
 /// Two-sided confidence of ±1 σ of a normal law, `erf(1/√2) = 0.682689…`
 /// (allantools' default; Stable32 prints "Confidence Factor = 0.683").
@@ -79,6 +79,34 @@ fn chi2_quantile(chi2: &ChiSquared, p: f64) -> Option<f64> {
         }
     }
     (x > 0.0 && x.is_finite()).then_some(x)
+}
+
+/// `E[χ²_ν/ν] / median(χ²_ν/ν)`: corrects a median of variance estimates with `nu` EDF to their mean.
+pub fn median_to_mean(nu: f64) -> f64 {
+    ChiSquared::new(nu)
+        .map(|c| nu / c.inverse_cdf(0.5))
+        .ok()
+        .filter(|x| x.is_finite() && *x > 0.0)
+        .unwrap_or(1.0)
+}
+
+/// z-score of a χ²_ν/ν variable observed at `ratio`: Φ⁻¹(F_χ²ν(ν·ratio)), from the tail the value lies in (so
+/// that z stays exact far out), clamped to ±30.
+pub fn chi2_z(ratio: f64, nu: f64) -> f64 {
+    let (Ok(c), Ok(n)) = (ChiSquared::new(nu), Normal::new(0.0, 1.0)) else {
+        return 0.0;
+    };
+    let x = nu * ratio.max(0.0);
+    let z = if ratio > 1.0 {
+        -n.inverse_cdf(c.sf(x).max(1e-300))
+    } else {
+        n.inverse_cdf(c.cdf(x).max(1e-300))
+    };
+    if z.is_finite() {
+        z.clamp(-30.0, 30.0)
+    } else {
+        0.0
+    }
 }
 
 #[cfg(test)]

@@ -36,17 +36,20 @@
 //! For many columns of the same length use one [`Analyzer`], which keeps its phase and
 //! scratch buffers between calls (no per-τ allocation, one buffer per column).
 
+pub mod acov;
 mod analysis;
 mod ci;
 mod deviation;
 mod edf;
 mod lanes;
 mod noise;
+pub mod noisefit;
 mod overlap;
+pub mod recording;
 mod taus;
 
 pub use analysis::{AnalysisPoint, Analyzer, Options, analyze};
-pub use ci::{ONE_SIGMA_CI, confidence_interval};
+pub use ci::{ONE_SIGMA_CI, chi2_z, confidence_interval, median_to_mean};
 pub use deviation::{DevKind, DevPoint, Phase, adev, deviation, mdev, oadev};
 pub use edf::{edf_for_kind, edf_greenhall};
 pub use noise::{

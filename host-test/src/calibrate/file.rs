@@ -339,6 +339,22 @@ impl CalibrationFile {
         Ok(table)
     }
 
+    /// A calibration of `groups` and nothing else: no metadata, thermal terms, weights or thermal fit (`t_ref_c` 0).
+    pub fn new(cal_id: u32, raw_min: i32, raw_max: i32, groups: Vec<GroupCalF64>) -> Self {
+        Self {
+            format: CALIBRATION_FORMAT.to_string(),
+            cal_id,
+            raw_min,
+            raw_max,
+            groups,
+            metadata: None,
+            t_ref_c: 0.0,
+            thermal: None,
+            weights: None,
+            thermal_fit: None,
+        }
+    }
+
     /// From a fixed-point table (no metadata; thermal terms and weights when the table has them).
     pub fn from_table<const G: usize>(t: &CalibrationTable<G>) -> Self {
         Self {
@@ -584,11 +600,6 @@ impl StaticCalibration {
             BiasModel::Constant
         };
         CalibrationFile {
-            format: CALIBRATION_FORMAT.to_string(),
-            cal_id,
-            raw_min: i32::from(i16::MIN),
-            raw_max: i32::from(i16::MAX),
-            groups,
             metadata: Some(CalibrationMetadata {
                 source: source.to_string(),
                 reference_imu: self.options.reference_imu,
@@ -608,10 +619,7 @@ impl StaticCalibration {
                     })
                     .collect(),
             }),
-            t_ref_c: 0.0,
-            thermal: None,
-            weights: None,
-            thermal_fit: None,
+            ..CalibrationFile::new(cal_id, i32::from(i16::MIN), i32::from(i16::MAX), groups)
         }
     }
 }

@@ -30,8 +30,8 @@ use crate::formats::mimu::{ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS};
 use crate::stats::rms;
 
 mod refine;
-use refine::*;
 pub use refine::{ClusterFit, refine_cluster};
+use refine::{poses_imus, t_ref};
 
 /// Fewest poses for the 9-parameter accelerometer model.
 pub const MIN_POSES: usize = 9;

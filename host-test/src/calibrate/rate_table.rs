@@ -23,7 +23,7 @@
 
 use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3};
 
-use super::file::{CALIBRATION_FORMAT, CalibrationFile, GroupCalF64};
+use super::file::{CalibrationFile, GroupCalF64};
 use super::{CalibError, Mat3, Vec3};
 
 /// An orientation of the board on the table: which board axis points up.
@@ -504,13 +504,11 @@ pub fn fit_rate_table<const G: usize>(
         .iter()
         .map(|r| fit_rate_table_group(r, opts))
         .collect::<Result<_, _>>()?;
-    let file = CalibrationFile {
-        format: CALIBRATION_FORMAT.to_string(),
+    let file = CalibrationFile::new(
         cal_id,
-        raw_min: opts.raw_min,
-        raw_max: opts.raw_max,
-        groups: fits
-            .iter()
+        opts.raw_min,
+        opts.raw_max,
+        fits.iter()
             .map(|f| GroupCalF64 {
                 gyro_matrix_dps_per_count: f.gyro_matrix_dps_per_count,
                 gyro_bias_counts: f.gyro_bias_counts,
@@ -518,11 +516,6 @@ pub fn fit_rate_table<const G: usize>(
                 accel_bias_counts: f.accel_bias_counts,
             })
             .collect(),
-        metadata: None,
-        t_ref_c: 0.0,
-        thermal: None,
-        weights: None,
-        thermal_fit: None,
-    };
+    );
     Ok((fits, file))
 }

@@ -76,7 +76,7 @@ fn haar_level_var(x: &[f64]) -> Vec<(f64, usize)> {
 
 /// `Σ_j v_j E_j` with `v_j = w + f·2^j + r·4^j` (white, flicker, random walk: their Haar variances per level), the
 /// three fitted to the measured levels by non-negative least squares weighted by each level's precision
-/// (`n_j / v_j²`, `crate::noisefit::nnls`).
+/// (`n_j / v_j²`, `crate::allan::noisefit::nnls`).
 fn haar_variance(energy: &[f64], v: &[(f64, usize)]) -> f64 {
     let rows: Vec<([f64; 3], f64, f64)> = v
         .iter()
@@ -87,7 +87,7 @@ fn haar_variance(energy: &[f64], v: &[(f64, usize)]) -> f64 {
             ([1.0, p, p * p], x, n as f64 / (x * x))
         })
         .collect();
-    let [w, f, r] = crate::noisefit::nnls(&rows).unwrap_or([0.0; 3]);
+    let [w, f, r] = crate::allan::noisefit::nnls(&rows).unwrap_or([0.0; 3]);
     energy
         .iter()
         .enumerate()

@@ -1,6 +1,18 @@
 //! Candidate effects of one axis (levels, common modes, blocks, thermal), all fitted on the first half.
 
-use super::*;
+use super::analyse::UNEQUAL_LN_SPREAD;
+use super::model::{Cross, Model, Share, Terms};
+use super::periodic;
+use super::sensors::{departures, drift_candidate};
+use super::singles::{Half, octave, region_name, weighted_mean};
+use super::types::{Groups, Options};
+use crate::allan::Analyzer;
+use crate::allan::acov::AllanCov;
+use crate::allan::median_to_mean;
+use crate::allan::noisefit;
+use crate::formats::csv::SensorKind;
+use crate::stats::median;
+use std::collections::BTreeMap;
 
 /// A candidate effect of one axis.
 #[derive(Clone, Debug)]

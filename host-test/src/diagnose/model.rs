@@ -11,7 +11,7 @@
 //! slow processes' own realisation (one drift path per half) cancel in the prediction instead of adding χ²
 //! scatter of a handful of blocks.
 
-use crate::noisefit::FLICKER_AVAR;
+use crate::allan::noisefit::FLICKER_AVAR;
 use serde::Serialize;
 
 /// Coefficients of the five Allan-variance terms `[3Q², N², (2 ln2/π)B², K²/3, R²/2]` of

@@ -4,8 +4,14 @@
 //! amplitude) by least squares at the refined frequency. Its Allan variance is the sinusoid's exact one
 //! ([`Sine::avar`]); the candidate goes through the held-out selection like any other (spec: `docs/diagnose.md`).
 
-use super::*;
-use model::Sine;
+use super::candidates::{AxisWork, Candidate};
+use super::model::Cross;
+use super::singles::weighted_mean;
+use super::types::Groups;
+use crate::stats::median;
+use std::collections::BTreeMap;
+
+use super::model::Sine;
 
 /// Blocks the periodogram works on at most (block length `n / MAX_BLOCKS`, at least one sample).
 const MAX_BLOCKS: usize = 8192;
@@ -370,19 +376,7 @@ mod tests {
     use super::*;
 
     fn noise(seed: u64, n: usize) -> Vec<f64> {
-        let mut s = seed | 1;
-        let mut u = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
-        (0..n)
-            .map(|_| {
-                let (a, b) = (u().max(1e-300), u());
-                (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
-            })
-            .collect()
+        crate::testrng::TestRng::new(seed).normals(n, 1.0)
     }
 
     #[test]

@@ -1,6 +1,8 @@
 //! Prediction against measurement: the z-score of each τ point's gap, χ², the scan statistic and its threshold.
 
-use super::*;
+use super::model::Model;
+use super::singles::Half;
+use crate::allan::chi2_z;
 
 /// The gap of one τ point.
 #[derive(Clone, Copy, Debug, Default)]

@@ -13,9 +13,9 @@
 //! `χ²_ν/ν`; a window is disturbed above its Bonferroni quantile at `p_false` over all windows and axes.
 //! Consecutive disturbed windows of an axis are one disturbance (spec: `docs/diagnose.md`).
 
-use super::axis_works;
+use super::analyse::axis_works;
 use super::periodic::detrend;
-use super::singles::median_to_mean;
+use crate::allan::median_to_mean;
 use crate::recording::{AXIS_NAMES, Recording};
 use crate::stats::median;
 use serde::Serialize;

@@ -237,27 +237,24 @@ fn gap(s: &mut String, r: &Report) {
         r.min_blocks,
         sig3(r.p_false)
     );
-    let _ = writeln!(
-        s,
-        "  {:<34} {:>10} {:>10} {:>22}",
-        "model", "first half", "held-out", "plain RMS ln, held-out"
-    );
-    let _ = writeln!(
-        s,
-        "  {:<34} {:>10} {:>10} {:>22}",
-        "before: √N (independent sensors)",
-        sig3(r.gap_before),
-        sig3(r.heldout.gap_before),
-        sig3(r.heldout.rms_before)
-    );
-    let _ = writeln!(
-        s,
-        "  {:<34} {:>10} {:>10} {:>22}",
-        "after: with the effects below",
-        sig3(r.gap_after),
-        sig3(r.heldout.gap_after),
-        sig3(r.heldout.rms_after)
-    );
+    let rows = [
+        ["model", "first half", "held-out", "plain RMS ln, held-out"].map(String::from),
+        [
+            "before: √N (independent sensors)".into(),
+            sig3(r.gap_before),
+            sig3(r.heldout.gap_before),
+            sig3(r.heldout.rms_before),
+        ],
+        [
+            "after: with the effects below".into(),
+            sig3(r.gap_after),
+            sig3(r.heldout.gap_after),
+            sig3(r.heldout.rms_after),
+        ],
+    ];
+    for [model, first, held_out, rms] in rows {
+        let _ = writeln!(s, "  {model:<34} {first:>10} {held_out:>10} {rms:>22}");
+    }
     let _ = writeln!(s);
 }
 

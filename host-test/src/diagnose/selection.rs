@@ -1,6 +1,17 @@
 //! Selection on the held-out half: which candidates act, added while they shrink the excess χ².
 
-use super::*;
+use super::analyse::{Acts, THERMAL_PREFERENCE};
+use super::candidates::{Candidate, build};
+use super::model::{Model, Terms};
+use super::prediction::{chi2, evaluate, octave_corr, scan_threshold, significant};
+use super::singles::{Half, region_name};
+use super::types::Options;
+use crate::allan::AnalysisPoint;
+use crate::allan::noisefit;
+use crate::allan::noisefit::NoiseFit;
+use crate::formats::csv::{AXIS_NAMES, SensorKind};
+use statrs::distribution::{ContinuousCDF, Normal};
+use std::collections::BTreeMap;
 
 pub(super) fn axis_label(kind: SensorKind, axis: usize) -> String {
     format!(

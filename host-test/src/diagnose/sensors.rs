@@ -2,7 +2,15 @@
 //! per sensor and per τ — not through a median over all τ — and told apart from a shared process by its Allan
 //! covariance with the other sensors, which stays null (spec: `docs/diagnose.md`).
 
-use super::*;
+use super::candidates::{AxisWork, Candidate, Row5, fit_subset};
+use super::model::{Cross, Terms};
+use super::prediction::{scan_statistic, scan_threshold};
+use super::singles::{Half, octave, weighted_mean};
+use super::types::{Groups, Options};
+use crate::allan::Analyzer;
+use crate::allan::chi2_z;
+use crate::stats::median;
+use std::collections::BTreeMap;
 
 /// One sensor's departure from the typical sensor at long τ, fitted on the first half.
 #[derive(Clone, Debug)]

@@ -1,7 +1,13 @@
 //! Per half and axis: the single sensors' and the cluster's Allan variances, EDFs and noise types, and the small statistics they use.
 
-use super::*;
-pub(super) use crate::stats::{median, rms};
+use super::model::Terms;
+use crate::allan::median_to_mean;
+use crate::allan::noisefit;
+use crate::allan::noisefit::NoiseFit;
+use crate::allan::{
+    AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, TauSpec, edf_for_kind,
+};
+use crate::stats::median;
 
 pub(super) fn octave(an: &mut Analyzer, y: &[f64], tau0: f64) -> Vec<AnalysisPoint> {
     an.analyze(
@@ -59,34 +65,6 @@ pub(super) fn region_name(t: &Terms, tau_s: f64) -> &'static str {
 pub(super) fn edf(alpha: i32, m: usize, n: usize) -> f64 {
     edf_for_kind(DevKind::Oadev, alpha, m, n)
         .unwrap_or_else(|| (1.5 * n as f64 / m.max(1) as f64).max(1.0))
-}
-
-/// `E[χ²_ν/ν] / median(χ²_ν/ν)`: corrects a median of variance estimates with `nu` EDF to their mean.
-pub(crate) fn median_to_mean(nu: f64) -> f64 {
-    ChiSquared::new(nu)
-        .map(|c| nu / c.inverse_cdf(0.5))
-        .ok()
-        .filter(|x| x.is_finite() && *x > 0.0)
-        .unwrap_or(1.0)
-}
-
-/// z-score of a χ²_ν/ν variable observed at `ratio`: Φ⁻¹(F_χ²ν(ν·ratio)), from the tail the value lies in (so
-/// that z stays exact far out), clamped to ±30.
-pub(super) fn chi2_z(ratio: f64, nu: f64) -> f64 {
-    let (Ok(c), Ok(n)) = (ChiSquared::new(nu), Normal::new(0.0, 1.0)) else {
-        return 0.0;
-    };
-    let x = nu * ratio.max(0.0);
-    let z = if ratio > 1.0 {
-        -n.inverse_cdf(c.sf(x).max(1e-300))
-    } else {
-        n.inverse_cdf(c.cdf(x).max(1e-300))
-    };
-    if z.is_finite() {
-        z.clamp(-30.0, 30.0)
-    } else {
-        0.0
-    }
 }
 
 /// The statistics of one half of one axis at every octave τ it supports.

@@ -1,6 +1,17 @@
 //! The report's tables: per-τ rows and independence, regions, gains, and effects merged across axes.
 
-use super::*;
+use super::analyse::Acts;
+use super::candidates::Candidate;
+use super::model::{Model, Terms};
+use super::prediction::PointGap;
+use super::singles::{Half, octave, region_name, weighted_mean};
+use super::types::{Effect, Gain, Groups, Independence, Region, TauRow};
+use crate::allan::chi2_z;
+use crate::allan::{AnalysisPoint, Analyzer};
+use crate::formats::csv::{AXIS_NAMES, SensorKind};
+use crate::stats::median;
+use statrs::distribution::{ChiSquared, ContinuousCDF};
+use std::collections::BTreeMap;
 
 /// The per-τ table of the held-out half and the test for independence.
 pub(super) fn tau_rows(

@@ -1,5 +1,9 @@
+use super::candidates::blocks;
+use super::prediction::octave_corr;
 use super::*;
-use crate::formats::csv::Column;
+use crate::allan::acov::AllanCov;
+use crate::allan::{chi2_z, median_to_mean};
+use crate::formats::csv::{Column, Recording, SensorKind};
 
 fn gauss(seed: u64) -> impl FnMut() -> f64 {
     let mut rng = crate::testrng::TestRng::new(seed);

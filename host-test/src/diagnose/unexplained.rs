@@ -3,7 +3,14 @@
 //! the chosen effects (or none qualified), the axis reports `unexplained` with where and how large the gap is and
 //! the closest candidate with how little it explains — never a wrong name (spec: `docs/diagnose.md`).
 
-use super::*;
+use super::candidates::{AxisWork, Candidate, build};
+use super::model::Model;
+use super::prediction::{PointGap, chi2, evaluate};
+use super::selection::AxisState;
+use super::singles::{Half, region_name};
+use super::types::{Effect, Groups, Options};
+use crate::formats::csv::AXIS_NAMES;
+use std::collections::BTreeMap;
 
 /// Share of the P0 held-out excess `Σ z² − n` the chosen effects together must remove to be named.
 pub(super) const NAME_SHARE: f64 = 0.5;

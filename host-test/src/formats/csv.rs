@@ -17,7 +17,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 mod parse;
-use parse::*;
+use parse::{BLOCK_BYTES, Layout, count_newlines, fast_number, fill, find_header, parse_region};
 #[doc(hidden)]
 pub use parse::{PieceParser, general_cell, parse_chunk};
 

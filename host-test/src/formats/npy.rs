@@ -440,7 +440,7 @@ impl<'a> NpyArray<'a> {
     }
 
     /// As [`recording_of`](Self::recording_of), and in the same pass the cluster mean of every axis over all
-    /// groups (gyro x y z, then accel x y z), equal to `adev::cluster_mean` of the whole recording bit for bit.
+    /// groups (gyro x y z, then accel x y z), equal to `allan::recording::cluster_mean` of the whole recording bit for bit.
     pub fn recording_with_means(
         &self,
         names: &[String],
@@ -566,7 +566,7 @@ impl<'a> NpyArray<'a> {
 
     /// The cluster means of a block: `avg[m]` = the mean over the groups of `cols[1 + 6·g + m]` (every array
     /// column of the block, `t` first), added column by column in group order, then divided: the sums
-    /// `adev::cluster_mean` makes.
+    /// `allan::recording::cluster_mean` makes.
     fn block_means<C: AsRef<[f64]>>(&self, cols: &[C], avg: &mut [&mut [f64]]) {
         let groups = self.groups();
         for (m, chunk) in avg.iter_mut().enumerate() {

@@ -60,7 +60,7 @@ impl AllanPoint {
         let column = if channel < SENSOR_CHANNELS {
             column_name(kind, channel / 6, axis % 3)
         } else {
-            crate::adev::mean_label(kind, (channel - FUSED_CHANNEL0) % 3)
+            crate::allan::recording::mean_label(kind, (channel - FUSED_CHANNEL0) % 3)
         };
         let tau0_s = a.tau0_ps as f64 * 1e-12;
         let factor = 1u64.checked_shl(u32::from(a.level.level))?;
@@ -265,7 +265,7 @@ impl TelemetryLog {
                 "{},{},{},{},{},{:e}",
                 p.channel,
                 p.column,
-                crate::adev::round_sig(p.tau_s, 10),
+                crate::allan::recording::round_sig(p.tau_s, 10),
                 p.count,
                 p.samples,
                 p.dev

@@ -50,17 +50,15 @@
 
 use super::{SimError, check, stream};
 use rand_xoshiro::Xoshiro256PlusPlus;
-use rand_xoshiro::rand_core::Rng;
 use std::f64::consts::{LN_2, LN_10, PI};
-use std::sync::OnceLock;
 
 mod flicker;
 mod gauss;
-use flicker::*;
+use flicker::FlickerSynth;
 pub use flicker::{FlickerBand, FlickerMethod};
 pub use gauss::normal;
 pub(crate) use gauss::round_to_step;
-use gauss::*;
+use gauss::signed_unit;
 
 /// `2 ln2 / π`: the IEEE 952 flicker floor AVAR per B² (ADEV floor `0.6643·B`).
 pub const FLICKER_AVAR_PER_B2: f64 = 2.0 * LN_2 / PI;

@@ -67,6 +67,13 @@ fn sampling(dt: f64, n: usize) -> Sampling {
     Sampling::new(1.0 / dt, n as f64 * dt).unwrap()
 }
 
+/// The default parameters with the changes `set` makes (one term on, for the single-term checks).
+fn params(set: impl FnOnce(&mut NoiseParams)) -> NoiseParams {
+    let mut p = NoiseParams::default();
+    set(&mut p);
+    p
+}
+
 fn single_term(name: &str, p: NoiseParams, dt: f64, n: usize, seed: u64) {
     let s = sampling(dt, n);
     let model = NoiseModel::new(&p, &s).unwrap();
@@ -81,10 +88,7 @@ fn white_adev_matches_n2_over_tau() {
 
 #[test]
 fn flicker_adev_matches_synthesised_sum() {
-    let p = NoiseParams {
-        flicker: 2.0,
-        ..NoiseParams::default()
-    };
+    let p = params(|p| p.flicker = 2.0);
     single_term("flicker (pole-zero)", p, 1.0, 1 << 20, 2);
     let dt = 1.0;
     let mut s = sampling(dt, 1 << 20);
@@ -96,30 +100,18 @@ fn flicker_adev_matches_synthesised_sum() {
 
 #[test]
 fn rrw_adev_matches_k2_tau_over_3() {
-    let p = NoiseParams {
-        rrw: 0.01,
-        ..NoiseParams::default()
-    };
-    single_term("rrw", p, 0.1, 1 << 20, 3);
+    single_term("rrw", params(|p| p.rrw = 0.01), 0.1, 1 << 20, 3);
 }
 
 #[test]
 fn quantisation_adev_matches_3q2_over_tau2() {
-    let p = NoiseParams {
-        quant: 0.02,
-        ..NoiseParams::default()
-    };
-    single_term("quant", p, 0.1, 1 << 20, 4);
+    single_term("quant", params(|p| p.quant = 0.02), 0.1, 1 << 20, 4);
 }
 
 #[test]
 fn gauss_markov_adev_matches_ar1() {
-    let p = NoiseParams {
-        gm_sigma: 1.0,
-        gm_tau_s: 20.0,
-        ..NoiseParams::default()
-    };
-    single_term("gauss-markov", p, 0.5, 1 << 20, 5);
+    let gm = params(|p| (p.gm_sigma, p.gm_tau_s) = (1.0, 20.0));
+    single_term("gauss-markov", gm, 0.5, 1 << 20, 5);
 }
 
 #[test]
@@ -742,6 +734,23 @@ fn thermal_drift_and_outlier_effects_are_as_configured() {
     assert!(x[3].iter().any(|&v| v != 0.0) && x[5].iter().all(|&v| v == 0.0));
 }
 
+/// A change that sets the cluster's flicker band (the bad-parameter cases).
+fn band(
+    tau_min_s: f64,
+    tau_max_s: f64,
+    per_decade: f64,
+    method: FlickerMethod,
+) -> Box<dyn Fn(&mut SimConfig)> {
+    Box::new(move |c| {
+        c.flicker_band = Some(FlickerBand {
+            tau_min_s,
+            tau_max_s,
+            per_decade,
+            method,
+        })
+    })
+}
+
 #[test]
 fn bad_parameters_are_errors_not_panics() {
     let ok = seed_config(1).unwrap();
@@ -764,42 +773,12 @@ fn bad_parameters_are_errors_not_panics() {
             c.common
                 .push(CommonMode::block("b", &[16], &[Axis::GyroX], 0.1, 0.0))
         }),
-        Box::new(|c| {
-            c.outliers.push(Outlier {
-                group: 20,
-                channel: Channel::AccelX,
-                noise_factor: 2.0,
-                step: 0.0,
-                step_at_s: 0.0,
-                drift_per_h: 0.0,
-            })
-        }),
+        Box::new(|c| c.outliers.push(Outlier::noisy(20, Channel::AccelX, 2.0))),
         Box::new(|c| c.spread.level_ln = -0.1),
         Box::new(|c| c.cal.scale_sd = 5.0),
-        Box::new(|c| {
-            c.flicker_band = Some(FlickerBand {
-                tau_min_s: 1.0,
-                tau_max_s: 0.5,
-                per_decade: 2.0,
-                method: FlickerMethod::PoleZero,
-            })
-        }),
-        Box::new(|c| {
-            c.flicker_band = Some(FlickerBand {
-                tau_min_s: 1e-12,
-                tau_max_s: 1e12,
-                per_decade: 20.0,
-                method: FlickerMethod::IndependentGm,
-            })
-        }),
-        Box::new(|c| {
-            c.flicker_band = Some(FlickerBand {
-                tau_min_s: 1e-4,
-                tau_max_s: 1e3,
-                per_decade: 2.0,
-                method: FlickerMethod::PoleZero,
-            })
-        }),
+        band(1.0, 0.5, 2.0, FlickerMethod::PoleZero),
+        band(1e-12, 1e12, 20.0, FlickerMethod::IndependentGm),
+        band(1e-4, 1e3, 2.0, FlickerMethod::PoleZero),
         Box::new(|c| {
             c.drift.push(CommonDrift {
                 groups: None,
@@ -856,22 +835,7 @@ fn csv_header_names_the_interchange_columns() {
     assert_eq!(h.split(',').count(), 2 + 16 * 6);
     assert!(csv_header(false).starts_with("t,g00x,"));
     for thermal in [false, true] {
-        let mut cfg = seed_config(1).unwrap();
-        cfg.samples = 2;
-        if thermal {
-            cfg.thermal = Some(Thermal {
-                mean_c: 20.0,
-                amplitude_c: 1.0,
-                period_s: 60.0,
-                phase_rad: 0.0,
-                drift_c_per_h: 0.0,
-                coef: [0.0; 6],
-                coef_sd: [0.0; 6],
-                ref_c: None,
-                hold_after_s: None,
-            });
-        }
-        let mut sim = Simulator::new(cfg).unwrap();
+        let mut sim = Simulator::new(seed_with_temperature(2, thermal)).unwrap();
         let mut chunk = Chunk::default();
         sim.next_chunk(&mut chunk);
         let mut row = String::new();
@@ -991,26 +955,31 @@ fn seed_experiment_timing() {
         "seed experiment: {n} samples × 112 channels, setup {t_setup:?}, total {el:?} incl. frame encoding ({bytes} B) [{check}]"
     );
 }
-// Append to host-test/src/sim/tests.rs once dropped into the project (needs crate::formats::csv).
+/// The seed experiment's first `samples` samples, with a temperature column (a 1 °C, 60 s sine that moves no
+/// sensor) when `thermal`.
+fn seed_with_temperature(samples: u64, thermal: bool) -> SimConfig {
+    let mut cfg = seed_config(1).unwrap();
+    cfg.samples = samples;
+    if thermal {
+        cfg.thermal = Some(Thermal {
+            mean_c: 20.0,
+            amplitude_c: 1.0,
+            period_s: 60.0,
+            phase_rad: 0.0,
+            drift_c_per_h: 0.0,
+            coef: [0.0; 6],
+            coef_sd: [0.0; 6],
+            ref_c: None,
+            hold_after_s: None,
+        });
+    }
+    cfg
+}
+
 #[test]
 fn csv_parses_with_the_project_reader() {
     for thermal in [false, true] {
-        let mut cfg = seed_config(1).unwrap();
-        cfg.samples = 50;
-        if thermal {
-            cfg.thermal = Some(Thermal {
-                mean_c: 20.0,
-                amplitude_c: 1.0,
-                period_s: 60.0,
-                phase_rad: 0.0,
-                drift_c_per_h: 0.0,
-                coef: [0.0; 6],
-                coef_sd: [0.0; 6],
-                ref_c: None,
-                hold_after_s: None,
-            });
-        }
-        let mut sim = Simulator::new(cfg).unwrap();
+        let mut sim = Simulator::new(seed_with_temperature(50, thermal)).unwrap();
         let mut chunk = Chunk::default();
         let mut text = csv_header(thermal) + "\n";
         let mut first = None;

@@ -12,14 +12,16 @@
 //! contiguous τ), in both directions — a simulation too noisy or too quiet — for both curves, each of the four
 //! tests at `p_false / 4`: an axis is reproduced unless one exceeds its threshold.
 
-use super::*;
+use super::TwinError;
 use crate::allan::{
     AnalysisPoint, Analyzer, DevKind, ONE_SIGMA_CI, Options as AllanOptions, TauSpec,
     confidence_interval,
 };
 use crate::diagnose::{scan_statistic, scan_threshold};
 use crate::recording::Recording;
+use crate::recording::SensorKind;
 use crate::stats::median;
+use serde::Serialize;
 
 /// Default false-alarm probability of the verdict per axis (the diagnosis's `p_false`).
 pub const P_FALSE: f64 = 2e-3;
@@ -149,7 +151,7 @@ fn curves(
     if cols.len() < 2 {
         return None;
     }
-    let (mean, ns) = crate::adev::cluster_mean(rec, kind, axis)?;
+    let (mean, ns) = crate::allan::recording::cluster_mean(rec, kind, axis)?;
     let n = mean.len();
     // A τ with at least `MIN_BLOCKS` averaging blocks and a known EDF (scaled by `edf_scale`), its χ² interval.
     let dev = |p: &AnalysisPoint, dev: f64, edf_scale: f64| -> Option<(f64, Dev)> {
@@ -290,8 +292,8 @@ impl Comparison {
                     (false, _) => format!("{name} reproduced"),
                     (true, Some([lo, hi])) => format!(
                         "{name} NOT reproduced at τ {}–{} s",
-                        crate::adev::round_sig(lo, 3),
-                        crate::adev::round_sig(hi, 3)
+                        crate::allan::recording::round_sig(lo, 3),
+                        crate::allan::recording::round_sig(hi, 3)
                     ),
                     (true, None) => format!("{name} NOT reproduced"),
                 }

@@ -21,9 +21,12 @@
 //!   terms ([`fit_temperature`]).
 
 use super::terms_fit::{self, Obs, Spec};
-use super::*;
+use super::{
+    AxisModel, BiasStep, ClusterModel, EffectSummary, FORMAT, Harmonic, NoiseTerms, RecordInfo,
+    SensorModel, SharedProcess, Sinusoid, TemperatureModel, TwinError,
+};
+use crate::allan::median_to_mean;
 use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, TauSpec};
-use crate::diagnose::median_to_mean;
 use crate::diagnose::model::{Cross, Terms};
 use crate::diagnose::{AxisFit, Report};
 use crate::recording::Recording;
@@ -522,7 +525,7 @@ pub fn fit_temperature(t_s: &[f64], temp: &[f64], tau0: f64) -> TemperatureModel
             .map(|(&t, &v)| (row(t, periods), v, 1.0))
             .collect();
         let mask = (1u32 << (2 + 2 * periods.len())) - 1;
-        let c = crate::noisefit::solve(&rows, mask).unwrap_or([0.0; 6]);
+        let c = crate::allan::noisefit::solve(&rows, mask).unwrap_or([0.0; 6]);
         let r = rows
             .iter()
             .map(|(b, v, _)| v - b.iter().zip(&c).map(|(x, k)| x * k).sum::<f64>())
@@ -580,7 +583,7 @@ pub fn fit_temperature(t_s: &[f64], temp: &[f64], tau0: f64) -> TemperatureModel
         &TauSpec::Octave,
         &AllanOptions::default(),
     );
-    let nf = crate::noisefit::fit(&pts);
+    let nf = crate::allan::noisefit::fit(&pts);
     TemperatureModel {
         reference_c: crate::stats::mean(y),
         start_c: c[0],

@@ -13,7 +13,7 @@ pub mod fit;
 pub mod play;
 pub mod terms_fit;
 
-use crate::noisefit::FLICKER_AVAR;
+use crate::allan::noisefit::FLICKER_AVAR;
 use crate::recording::SensorKind;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -133,12 +133,12 @@ impl NoiseTerms {
     }
 
     /// The Allan variance at `tau_s` of these terms sampled every `tau0_s`, the white term seen through
-    /// `low_pass` when there is one (its factor [`LowPass::white_factor`](crate::noisefit::LowPass::white_factor)).
+    /// `low_pass` when there is one (its factor [`LowPass::white_factor`](crate::allan::noisefit::LowPass::white_factor)).
     pub fn avar(
         &self,
         tau_s: f64,
         tau0_s: f64,
-        low_pass: Option<&crate::noisefit::LowPass>,
+        low_pass: Option<&crate::allan::noisefit::LowPass>,
     ) -> f64 {
         let b = basis(tau_s, low_pass);
         let five: f64 = self
@@ -209,7 +209,7 @@ impl NoiseTerms {
 
 /// The Allan-variance basis of the five terms at `tau_s` (`diagnose::model::Terms::basis`), the white term's through
 /// `low_pass` when there is one.
-pub fn basis(tau_s: f64, low_pass: Option<&crate::noisefit::LowPass>) -> [f64; 5] {
+pub fn basis(tau_s: f64, low_pass: Option<&crate::allan::noisefit::LowPass>) -> [f64; 5] {
     let mut b = crate::diagnose::model::Terms::basis(tau_s);
     if let Some(l) = low_pass {
         b[1] *= l.white_factor(tau_s);
@@ -331,8 +331,8 @@ impl AxisModel {
     }
 
     /// The axis's bandwidth as the filter at `rate_hz` (`None` without one).
-    pub fn low_pass(&self, rate_hz: f64) -> Option<crate::noisefit::LowPass> {
-        self.bandwidth_hz.map(|f| crate::noisefit::LowPass {
+    pub fn low_pass(&self, rate_hz: f64) -> Option<crate::allan::noisefit::LowPass> {
+        self.bandwidth_hz.map(|f| crate::allan::noisefit::LowPass {
             cutoff_hz: f,
             tau0_s: 1.0 / rate_hz,
         })

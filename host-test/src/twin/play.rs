@@ -5,7 +5,11 @@
 //! the whole through the axis's bandwidth; then the Gauss–Markov terms (own and shared), exact AR(1), of the output.
 //! Without effects, every sensor plays the typical terms alone: the √N model the diagnosis starts from.
 
-use super::*;
+use super::{
+    BiasStep, ClusterModel, GaussMarkov, NoiseTerms, SharedProcess, Sinusoid, TemperatureModel,
+    TwinError,
+};
+use crate::recording::SensorKind;
 use crate::recording::{Column, Recording};
 use crate::sim::noise::{NoiseParams, Sampling, SensorNoise};
 
@@ -118,6 +122,34 @@ fn add_deterministic(series: &mut [f64], sinusoids: &[Sinusoid], steps: &[BiasSt
     }
 }
 
+/// The temperature the play uses: the one given (its first `n` samples), else the model's own temperature played,
+/// else none — an error if the model's thermal coefficients would need one.
+fn played_temperature(
+    model: &ClusterModel,
+    opts: &PlayOptions,
+    sampling: &Sampling,
+    n: usize,
+) -> Result<Option<Vec<f64>>, TwinError> {
+    let thermal = !opts.without_effects
+        && model
+            .axes
+            .iter()
+            .any(|a| a.sensors.iter().any(|s| s.thermal_per_c != 0.0));
+    match (&opts.temperature, &model.temperature) {
+        (Some(t), _) if t.len() >= n => Ok(Some(t[..n].to_vec())),
+        (Some(t), _) => Err(TwinError::Invalid(format!(
+            "the temperature given has {} samples, {n} are played",
+            t.len()
+        ))),
+        (None, Some(m)) => Ok(Some(temperature(m, sampling, n, opts.seed)?)),
+        (None, None) if thermal => Err(TwinError::Invalid(
+            "the model has thermal coefficients but no temperature: give one (--temperature-from)"
+                .into(),
+        )),
+        (None, None) => Ok(None),
+    }
+}
+
 /// Plays `model` (see the module docs).
 pub fn play(model: &ClusterModel, opts: &PlayOptions) -> Result<Recording, TwinError> {
     model.validate()?;
@@ -130,27 +162,7 @@ pub fn play(model: &ClusterModel, opts: &PlayOptions) -> Result<Recording, TwinE
     }
     let sampling =
         Sampling::new(rate, n as f64 / rate).map_err(|e| TwinError::Invalid(e.to_string()))?;
-    let thermal = !opts.without_effects
-        && model
-            .axes
-            .iter()
-            .any(|a| a.sensors.iter().any(|s| s.thermal_per_c != 0.0));
-    let temp = match (&opts.temperature, &model.temperature) {
-        (Some(t), _) if t.len() >= n => Some(t[..n].to_vec()),
-        (Some(t), _) => {
-            return Err(TwinError::Invalid(format!(
-                "the temperature given has {} samples, {n} are played",
-                t.len()
-            )));
-        }
-        (None, Some(m)) => Some(temperature(m, &sampling, n, opts.seed)?),
-        (None, None) if thermal => {
-            return Err(TwinError::Invalid(
-                "the model has thermal coefficients but no temperature: give one (--temperature-from)".into(),
-            ));
-        }
-        (None, None) => None,
-    };
+    let temp = played_temperature(model, opts, &sampling, n)?;
     let t_ref = model.temperature.as_ref().map_or(0.0, |t| t.reference_c);
     let mut columns = Vec::new();
     for (ai, axis) in model.axes.iter().enumerate() {

@@ -3,7 +3,7 @@
 //! terms chosen on held-out data.
 //!
 //! - **Fit at a given set of correlation times**: the Allan variance is linear in the five coefficients and in each
-//!   Gauss–Markov variance σ², so every term is fitted by non-negative least squares ([`crate::noisefit::nnls`]),
+//!   Gauss–Markov variance σ², so every term is fitted by non-negative least squares ([`crate::allan::noisefit::nnls`]),
 //!   each point weighted by the inverse variance of its estimate (`ν/2σ⁴` at its Greenhall EDF ν: the diagonal of
 //!   the estimator's covariance).
 //! - **Correlation times**: chosen greedily from a grid (two per octave, from 2τ₀ to 1/32 of the longest τ of the curve):
@@ -15,7 +15,7 @@
 
 use super::{GM_MAX, GaussMarkov, NoiseTerms, basis, gm_basis};
 use crate::allan::AnalysisPoint;
-use crate::noisefit::{LowPass, nnls};
+use crate::allan::noisefit::{LowPass, nnls};
 
 /// Columns of a fit: the five terms, then the Gauss–Markov terms.
 const COLS: usize = 5 + GM_MAX;

@@ -103,17 +103,29 @@ pub fn sinusoid(
     amplitude
 }
 
+/// A 600 s sinusoid on gyro x of every group, `factor` × the cluster's AVAR at its Allan-variance peak (τ ≈ 223 s);
+/// returns its period and amplitude.
+pub fn shared_gyro_x_sinusoid(cfg: &mut SimConfig, factor: f64) -> (f64, f64) {
+    let period = 600.0;
+    let gx = (Axis::GyroX, Channel::GyroAX);
+    (period, sinusoid(cfg, None, gx, period, factor, 0.7))
+}
+
+/// Group 7's accel y alone: a 90 s sinusoid at 3× its own AVAR at the sinusoid's peak (τ ≈ 33 s); returns its
+/// period and amplitude.
+pub fn own_accel_y_sinusoid(cfg: &mut SimConfig) -> (f64, f64) {
+    let period = 90.0;
+    let ay = (Axis::AccelY, Channel::AccelY);
+    (
+        period,
+        sinusoid(cfg, Some(vec![7]), ay, period, 3.0 * 16.0, 0.0),
+    )
+}
+
 /// A bias step of `size` (°/s) on both z gyros of `group` at `at_s`: that group's gz output steps by `size`.
 pub fn gyro_z_step(cfg: &mut SimConfig, group: usize, size: f64, at_s: f64) {
     for channel in [Channel::GyroAZ, Channel::GyroBZ] {
-        cfg.outliers.push(Outlier {
-            group,
-            channel,
-            noise_factor: 1.0,
-            step: size,
-            step_at_s: at_s,
-            drift_per_h: 0.0,
-        });
+        cfg.outliers.push(Outlier::step(group, channel, size, at_s));
     }
 }
 

@@ -75,14 +75,7 @@ fn header_vectors_v2() {
         ((2, 1, 5000, 1, 33, 0), "93 88 00 04 18 40"),
     ];
     check_vectors(CspVersion::V2, &cases);
-    let h = CspHeader {
-        prio: 2,
-        src: 1,
-        dst: 10,
-        dport: 11,
-        sport: 40,
-        flags: 0,
-    };
+    let h = header(0);
     // Out of a version's range: 14-bit addresses and 6-bit flags in v2, 5-bit addresses in v1.
     for bad in [
         CspHeader { src: 16384, ..h },
@@ -102,19 +95,24 @@ fn header_vectors_v2() {
     );
 }
 
+/// The header of the tests: priority 2, node 1 port 40 to node 10 port 11, with `flags`.
+fn header(flags: u8) -> CspHeader {
+    CspHeader {
+        prio: 2,
+        src: 1,
+        dst: 10,
+        dport: 11,
+        sport: 40,
+        flags,
+    }
+}
+
 /// libcsp's `csp_crc32_verify` accepts a CRC over the payload or over header and payload (a libcsp 2.1 build
 /// sends the latter); so do we, for the link CRC and the end-to-end CRC, in both versions.
 #[test]
 fn crc_over_header_and_payload_is_accepted() {
     for version in [CspVersion::V1, CspVersion::V2] {
-        let h = CspHeader {
-            prio: 2,
-            src: 1,
-            dst: 10,
-            dport: 11,
-            sport: 40,
-            flags: FLAG_CRC32,
-        };
+        let h = header(FLAG_CRC32);
         let head = h.emit(version).unwrap();
         let data = b"cmd";
         let mut inner = crate::crc::Crc32c::new();

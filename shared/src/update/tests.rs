@@ -3,9 +3,11 @@
 extern crate std;
 
 use super::*;
+use crate::crc::crc32c;
 use crate::storage::mock::MockFlash;
 use crate::testutil::Rng;
 use ed25519_dalek::{Signer, SigningKey};
+use embedded_storage::nor_flash::NorFlash;
 use sha2::{Digest, Sha512};
 
 const SECTOR: usize = 128 * 1024;

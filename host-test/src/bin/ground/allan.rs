@@ -3,7 +3,7 @@
 use crate::common::{any_calib, apply_window, bar, print_loaded, spinner, write_file};
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
-use host_test::adev::{self, AdevRequest};
+use host_test::allan::recording::{self, AdevRequest};
 use host_test::allan::{DevKind, TauSpec};
 use host_test::{load, plot};
 use shared::wire::clock::FPGA_BASE_RATE_MILLIHZ;
@@ -98,7 +98,7 @@ pub fn run(a: Args) -> Result<()> {
     } + 6;
     let t_read = t0.elapsed().as_secs_f64();
     let pb = bar(n_series as u64, "series");
-    let series = adev::analyze_with_means(rec, means, &req, &|| pb.inc(1))?;
+    let series = recording::analyze_with_means(rec, means, &req, &|| pb.inc(1))?;
     pb.finish_and_clear();
     let t_analysis = t0.elapsed().as_secs_f64() - t_read;
     if series.iter().all(|s| s.points.is_empty()) {
@@ -121,13 +121,13 @@ pub fn run(a: Args) -> Result<()> {
     let rate = 1.0 / rec.sample_interval_s().unwrap_or(f64::NAN);
     // Checked before anything is written: no Kalibr file with invented noise densities.
     if a.kalibr.is_some() {
-        let warnings = adev::kalibr_check(&series, rate)
+        let warnings = recording::kalibr_check(&series, rate)
             .map_err(|e| anyhow::anyhow!("--kalibr: {}: {e}", a.recording.display()))?;
         for w in warnings {
             eprintln!("warning: --kalibr: {w}");
         }
     }
-    write_file(&a.out, |w| adev::write_long_csv(&series, w))?;
+    write_file(&a.out, |w| recording::write_long_csv(&series, w))?;
     println!(
         "{}: {} series, {} samples at {:.6} s (reading {:.2} s, analysis {:.2} s)",
         a.out.display(),
@@ -143,11 +143,11 @@ pub fn run(a: Args) -> Result<()> {
         println!("plot: {}", p.display());
     }
     if let Some(f) = &a.fit {
-        write_file(f, |w| adev::write_fit_csv(&series, w))?;
+        write_file(f, |w| recording::write_fit_csv(&series, w))?;
         println!("noise fits: {}", f.display());
     }
     if let Some(k) = &a.kalibr {
-        std::fs::write(k, adev::kalibr_yaml(&series, rate, "/imu0"))
+        std::fs::write(k, recording::kalibr_yaml(&series, rate, "/imu0"))
             .with_context(|| format!("writing {}", k.display()))?;
         println!("kalibr: {}", k.display());
     }
@@ -161,7 +161,7 @@ fn unit_scale(kind: host_test::recording::SensorKind) -> (&'static str, f64) {
     }
 }
 
-fn print_summary(series: &[adev::Series]) {
+fn print_summary(series: &[recording::Series]) {
     println!("cluster means (noise-term fit; minimum of the curve with its 68 % interval):");
     for s in series.iter().filter(|s| s.group.is_none()) {
         let (u, k) = unit_scale(s.kind);

@@ -1,6 +1,9 @@
 //! Step 3 of the static calibration: all IMUs refined together with the forward model (see the parent module).
 
-use super::*;
+use super::{BiasModel, MIN_POSES, StaticCalOptions, check_finite};
+use crate::calibrate::linalg::{arr3, arrv, levenberg_marquardt, mat3, polar, vec3};
+use crate::calibrate::{CalibError, Mat3, StaticInterval, Vec3};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
 /// Result of [`refine_cluster`].
 #[derive(Clone, Debug, PartialEq)]

@@ -7,12 +7,11 @@ use crate::calibrate::linalg::{arrv, mat3, vec3};
 use crate::calibrate::*;
 
 fn cal(rng: &mut Rng, n: usize) -> CalibrationFile {
-    CalibrationFile {
-        format: CALIBRATION_FORMAT.to_string(),
-        cal_id: 1,
-        raw_min: -32768,
-        raw_max: 32767,
-        groups: (0..n)
+    CalibrationFile::new(
+        1,
+        -32768,
+        32767,
+        (0..n)
             .map(|_| {
                 let (accel_matrix_g_per_count, accel_bias_counts) = accel_near_identity(rng);
                 GroupCalF64 {
@@ -27,12 +26,7 @@ fn cal(rng: &mut Rng, n: usize) -> CalibrationFile {
                 }
             })
             .collect(),
-        metadata: None,
-        t_ref_c: 0.0,
-        thermal: None,
-        weights: None,
-        thermal_fit: None,
-    }
+    )
 }
 
 /// Poses of `file`'s sensors with biases shifted by `shift` counts, gyro biases `gyro`.

@@ -33,11 +33,6 @@ fn sample_file(rng: &mut Rng, n: usize) -> CalibrationFile {
         })
         .collect();
     CalibrationFile {
-        format: CALIBRATION_FORMAT.to_string(),
-        cal_id: 42,
-        raw_min: -32768,
-        raw_max: 32767,
-        groups,
         metadata: Some(CalibrationMetadata {
             source: "synthetic".into(),
             reference_imu: 0,
@@ -59,10 +54,7 @@ fn sample_file(rng: &mut Rng, n: usize) -> CalibrationFile {
                 })
                 .collect(),
         }),
-        t_ref_c: 0.0,
-        thermal: None,
-        weights: None,
-        thermal_fit: None,
+        ..CalibrationFile::new(42, -32768, 32767, groups)
     }
 }
 

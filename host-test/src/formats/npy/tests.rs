@@ -213,7 +213,7 @@ fn the_loader_knows_npy_by_extension_or_magic() {
 /// column's and the means' lines of it.
 #[test]
 fn allan_of_the_npy_equals_allan_of_the_csv() {
-    use crate::adev::{self, AdevRequest};
+    use crate::allan::recording::{self, AdevRequest};
     use crate::allan::{DevKind, TauSpec};
     let (rows, groups) = (5000, 3);
     let mut rng = crate::testrng::TestRng::new(31);
@@ -258,14 +258,14 @@ fn allan_of_the_npy_equals_allan_of_the_csv() {
         columns: vec![],
         cluster: true,
     };
-    let long_csv = |series: &[adev::Series]| {
+    let long_csv = |series: &[recording::Series]| {
         let mut out = Vec::new();
-        adev::write_long_csv(series, &mut out).unwrap();
+        recording::write_long_csv(series, &mut out).unwrap();
         String::from_utf8(out).unwrap()
     };
     let allan = |path: &Path| {
         let loaded = crate::load::load_with(path, None, 0).unwrap();
-        long_csv(&adev::analyze(&loaded.recording, &req, &|| ()).unwrap())
+        long_csv(&recording::analyze(&loaded.recording, &req, &|| ()).unwrap())
     };
     let from_csv = allan(&csv);
     for label in ["g00x", "a02z", "mean_gx", "mean_az"] {
@@ -278,7 +278,7 @@ fn allan_of_the_npy_equals_allan_of_the_csv() {
         let (loaded, means) = crate::load::load_selected(path, None, 0, &[]).unwrap();
         assert_eq!(loaded.recording, rec);
         for m in means.unwrap() {
-            let (data, n) = adev::cluster_mean(&rec, m.kind, m.axis).unwrap();
+            let (data, n) = recording::cluster_mean(&rec, m.kind, m.axis).unwrap();
             assert_eq!((m.data, m.members), (data, n));
         }
         let one = vec!["g01y".to_string()];
@@ -287,14 +287,17 @@ fn allan_of_the_npy_equals_allan_of_the_csv() {
         let means = means.unwrap();
         assert_eq!(
             means[1].data,
-            adev::cluster_mean(&rec, SensorKind::Gyro, 1).unwrap().0
+            recording::cluster_mean(&rec, SensorKind::Gyro, 1)
+                .unwrap()
+                .0
         );
         let req_one = AdevRequest {
             columns: one,
             ..req.clone()
         };
         let series =
-            adev::analyze_with_means(&loaded.recording, Some(means), &req_one, &|| ()).unwrap();
+            recording::analyze_with_means(&loaded.recording, Some(means), &req_one, &|| ())
+                .unwrap();
         let expect: Vec<&str> = from_csv
             .lines()
             .filter(|l| {

@@ -173,6 +173,29 @@ pub struct Outlier {
     pub drift_per_h: f64,
 }
 
+impl Outlier {
+    /// `group`'s `channel` with `noise_factor` × its noise terms and nothing else.
+    pub fn noisy(group: usize, channel: Channel, noise_factor: f64) -> Self {
+        Self {
+            group,
+            channel,
+            noise_factor,
+            step: 0.0,
+            step_at_s: 0.0,
+            drift_per_h: 0.0,
+        }
+    }
+
+    /// `group`'s `channel` with a bias step of `step` (u) at `step_at_s` and nothing else.
+    pub fn step(group: usize, channel: Channel, step: f64, step_at_s: f64) -> Self {
+        Self {
+            step,
+            step_at_s,
+            ..Self::noisy(group, channel, 1.0)
+        }
+    }
+}
+
 /// Spread of noise levels between parts: each sensor's N, B and K are multiplied by lognormal factors
 /// `exp(level_ln·z₀ + white_ln·z₁)`, `exp(level_ln·z₀ + flicker_ln·z₂)`, `exp(level_ln·z₀ + rrw_ln·z₃)` with
 /// independent standard normal z (median factor 1; `level_ln` moves a part's three levels together).

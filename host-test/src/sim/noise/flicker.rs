@@ -1,7 +1,9 @@
 //! Flicker noise from first-order Gauss–Markov sections: the band of correlation times and how it is synthesised
 //! (see *Flicker synthesis* in the parent module).
 
-use super::*;
+use super::{FLICKER_AVAR_PER_B2, ar1_avar};
+use crate::sim::{SimError, check};
+use std::f64::consts::{LN_10, PI};
 
 /// How flicker noise is synthesised from first-order Gauss–Markov (AR(1)) sections.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

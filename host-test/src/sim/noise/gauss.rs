@@ -1,6 +1,7 @@
 //! Standard normal draws (ziggurat) and the rounding of outputs to a step.
 
-use super::*;
+use rand_xoshiro::rand_core::Rng;
+use std::sync::OnceLock;
 
 /// Rounds each value to the nearest multiple of `step`, halves away from zero (no-op for `step == 0`; values
 /// beyond ±2⁶² steps saturate).

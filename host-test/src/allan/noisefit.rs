@@ -339,19 +339,10 @@ mod tests {
         assert_eq!(fit(&[]), NoiseFit::default());
     }
 
-    /// Seeded normal draws (xorshift64 + Box–Muller), for the filtered-noise check.
+    /// Seeded normal draws, for the filtered-noise check.
     fn gauss(seed: u64) -> impl FnMut() -> f64 {
-        let mut s = seed.max(1);
-        move || {
-            let mut u = || {
-                s ^= s << 13;
-                s ^= s >> 7;
-                s ^= s << 17;
-                (s >> 11) as f64 / (1u64 << 53) as f64
-            };
-            let (a, b) = (u().max(1e-300), u());
-            (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
-        }
+        let mut rng = crate::testrng::TestRng::new(seed);
+        move || rng.normal()
     }
 
     #[test]

@@ -2,8 +2,8 @@
 //! cluster mean of each axis, deviations with Greenhall-EDF confidence intervals and the identified noise type, a
 //! noise-term fit, the equal-weight independence expectation, and Kalibr's `imu.yaml`.
 
+use crate::allan::noisefit::{self, NoiseFit};
 use crate::allan::{AnalysisPoint, Analyzer, DevKind, Options, TauSpec};
-use crate::noisefit::{self, NoiseFit};
 use crate::recording::{AXIS_NAMES, AxisMean, Recording, SensorKind};
 use rayon::prelude::*;
 use std::fmt::Write as _;
