@@ -11,11 +11,6 @@ fn roundtrip<T: Serialize + DeserializeOwned + PartialEq + core::fmt::Debug>(msg
 }
 
 fn largest_telemetry() -> [Telemetry; 7] {
-    let faults = FaultCounts {
-        saturated: u32::MAX,
-        stuck: u32::MAX,
-        outlier: u32::MAX,
-    };
     let mask = SensorFaults {
         saturated: u32::MAX,
         stuck: u32::MAX,
@@ -46,76 +41,8 @@ fn largest_telemetry() -> [Telemetry; 7] {
                 sum_sq: u128::MAX,
             },
         }),
-        Telemetry::Health(HealthReport {
-            uptime_ms: u64::MAX,
-            link: LinkCounters {
-                frames: u32::MAX,
-                crc_errors: u32::MAX,
-                resyncs: u32::MAX,
-                bytes_skipped: u32::MAX,
-                frames_dropped: u32::MAX,
-                seq_restarts: u32::MAX,
-                overruns: u32::MAX,
-            },
-            cal_id: u32::MAX,
-            cal_source: CalSource::Uploaded,
-            decimation: Some(u16::MAX),
-            frames_per_output: u16::MAX,
-            fusion: FusionMode::InverseVariance,
-            robust: true,
-            faults: [faults; 2],
-            invalid_frames: u32::MAX,
-            allan_samples: u64::MAX,
-            telemetry_dropped: u32::MAX,
-            commands: [u32::MAX; 2],
-            temp: crate::calib::thermal::TempCounts {
-                missing: u32::MAX,
-                held: u32::MAX,
-            },
-            thermal_at_cdeg: Some(i16::MIN),
-        }),
-        Telemetry::Housekeeping(HousekeepingReport {
-            uptime_ms: u64::MAX,
-            fw_commit: u32::MAX,
-            fw_dirty: true,
-            reset_flags: u8::MAX,
-            boot_count: u32::MAX,
-            safe_mode: true,
-            clock_source: Some(ClockSource::HsiAfterClockFailure),
-            hsi_trim: u8::MAX,
-            hsi_error_ppm: Some(i32::MIN),
-            bor_level: Some(u8::MAX),
-            stores_refused_low_vdd: u32::MAX,
-            core_load_permille: Some(u16::MAX),
-            core_cycles_per_frame: Some(u32::MAX),
-            mcu_temp_cdeg: Some(i16::MIN),
-            vdda_mv: Some(u16::MAX),
-            link_rx_errors: RxErrorCounts {
-                overrun: u32::MAX,
-                line: u32::MAX,
-                other: u32::MAX,
-            },
-            bus_rx_errors: RxErrorCounts {
-                overrun: u32::MAX,
-                line: u32::MAX,
-                other: u32::MAX,
-            },
-            bus_tx_errors: u32::MAX,
-            bus: BusCounters {
-                packets: u32::MAX,
-                kiss_errors: u32::MAX,
-                csp_errors: u32::MAX,
-                ignored: u32::MAX,
-            },
-            fpga_ctrl_dropped: u32::MAX,
-            time_gaps: u32::MAX,
-            cal_stores: [u32::MAX; 2],
-            last_store: StoreOutcome::Stored(u32::MAX),
-            cal_ram_repairs: u32::MAX,
-            mode: Mode::Idle,
-            excluded: [u32::MAX; 2],
-            core_clock_hz: Some(u32::MAX),
-        }),
+        Telemetry::Health(largest_health()),
+        Telemetry::Housekeeping(largest_housekeeping()),
         Telemetry::Nav(NavReport {
             seq: u32::MAX,
             t_us: u64::MAX,
@@ -164,6 +91,89 @@ fn largest_telemetry() -> [Telemetry; 7] {
             },
         }),
     ]
+}
+
+/// The largest health report: every counter at its maximum.
+fn largest_health() -> HealthReport {
+    let faults = FaultCounts {
+        saturated: u32::MAX,
+        stuck: u32::MAX,
+        outlier: u32::MAX,
+    };
+    HealthReport {
+        uptime_ms: u64::MAX,
+        link: LinkCounters {
+            frames: u32::MAX,
+            crc_errors: u32::MAX,
+            resyncs: u32::MAX,
+            bytes_skipped: u32::MAX,
+            frames_dropped: u32::MAX,
+            seq_restarts: u32::MAX,
+            overruns: u32::MAX,
+        },
+        cal_id: u32::MAX,
+        cal_source: CalSource::Uploaded,
+        decimation: Some(u16::MAX),
+        frames_per_output: u16::MAX,
+        fusion: FusionMode::InverseVariance,
+        robust: true,
+        faults: [faults; 2],
+        invalid_frames: u32::MAX,
+        allan_samples: u64::MAX,
+        telemetry_dropped: u32::MAX,
+        commands: [u32::MAX; 2],
+        temp: crate::calib::thermal::TempCounts {
+            missing: u32::MAX,
+            held: u32::MAX,
+        },
+        thermal_at_cdeg: Some(i16::MIN),
+    }
+}
+
+/// The largest housekeeping report: every counter at its maximum, every option present.
+fn largest_housekeeping() -> HousekeepingReport {
+    HousekeepingReport {
+        uptime_ms: u64::MAX,
+        fw_commit: u32::MAX,
+        fw_dirty: true,
+        reset_flags: u8::MAX,
+        boot_count: u32::MAX,
+        safe_mode: true,
+        clock_source: Some(ClockSource::HsiAfterClockFailure),
+        hsi_trim: u8::MAX,
+        hsi_error_ppm: Some(i32::MIN),
+        bor_level: Some(u8::MAX),
+        stores_refused_low_vdd: u32::MAX,
+        core_load_permille: Some(u16::MAX),
+        core_cycles_per_frame: Some(u32::MAX),
+        mcu_temp_cdeg: Some(i16::MIN),
+        vdda_mv: Some(u16::MAX),
+        link_rx_errors: RxErrorCounts {
+            overrun: u32::MAX,
+            line: u32::MAX,
+            other: u32::MAX,
+        },
+        bus_rx_errors: RxErrorCounts {
+            overrun: u32::MAX,
+            line: u32::MAX,
+            other: u32::MAX,
+        },
+        bus_tx_errors: u32::MAX,
+        bus: BusCounters {
+            packets: u32::MAX,
+            kiss_errors: u32::MAX,
+            csp_errors: u32::MAX,
+            ignored: u32::MAX,
+        },
+        fpga_ctrl_dropped: u32::MAX,
+        time_gaps: u32::MAX,
+        cal_stores: [u32::MAX; 2],
+        last_store: StoreOutcome::Stored(u32::MAX),
+        cal_ram_repairs: u32::MAX,
+        mode: Mode::Idle,
+        excluded: [u32::MAX; 2],
+        core_clock_hz: Some(u32::MAX),
+    }
 }
 
 #[test]
