@@ -218,9 +218,15 @@ fn check(input: Input) {
         assert_eq!((c.kiss_errors, c.csp_errors), (0, 0));
     }
 
-    // Telemetry to the ground, replies to pings.
+    replies(&cfg, &stream, &whole);
+}
+
+/// Telemetry to the ground (the start of `stream` as its payload) round trips, and every ping in `whole` gets its
+/// reply.
+fn replies(cfg: &BusConfig, stream: &[u8], whole: &[Ev]) {
+    let mut out = [0u8; MAX_WIRE_FRAME];
     let payload: Vec<u8> = stream.iter().copied().take(MAX_PAYLOAD).collect();
-    let node = BusNode::new(cfg);
+    let node = BusNode::new(*cfg);
     let n = node
         .encode_telemetry(&payload, &mut out)
         .expect("telemetry fits");
@@ -239,7 +245,7 @@ fn check(input: Input) {
         Some(Ev::Command(payload.clone())),
         "telemetry round trip"
     );
-    for e in &whole {
+    for e in whole {
         if let Ev::Ping(h, p) = e {
             let n = node.encode_reply(h, p, &mut out).expect("reply fits");
             let mut d = KissDecoder::<MAX_FRAME>::new();

@@ -299,75 +299,7 @@ fn check(input: Input) {
             Op::Command { tag, cmd } => {
                 let _ = run.send(*tag, cmd.command());
             }
-            Op::Upload(u) => {
-                let mut table = CalibrationTable::<GROUPS>::factory();
-                table.cal_id = u.cal_id;
-                table.raw_min = i32::from(u.raw_min);
-                let g = &mut table.groups[usize::from(u.group) % GROUPS];
-                g.gyro_bias_q12[usize::from(u.group) % 4] = u.bias;
-                g.accel_matrix_q12[usize::from(u.group) % 3][0] += i32::from(u.gain);
-                let mut buf = [0u8; encoded_len_max(GROUPS)];
-                let mut bytes = table.encode(&mut buf).unwrap().to_vec();
-                let crc = crc32c(&bytes);
-                if let Some((at, x)) = u.corrupt {
-                    let n = bytes.len();
-                    bytes[usize::from(at) % n] ^= x;
-                }
-                let before = *run.p.calibration();
-                let before_source = run.p.calibration_source();
-                let (ack, _) = run.send(
-                    u.tag,
-                    Command::CalBegin {
-                        len: bytes.len() as u16,
-                        crc,
-                    },
-                );
-                assert_eq!(ack.result, Ok(()), "CalBegin of a table");
-                let sizes: Vec<usize> = if u.chunk_sizes.is_empty() {
-                    vec![CAL_CHUNK_MAX]
-                } else {
-                    u.chunk_sizes
-                        .iter()
-                        .map(|&s| usize::from(s).clamp(1, CAL_CHUNK_MAX))
-                        .collect()
-                };
-                let mut off = 0;
-                let mut i = 0;
-                while off < bytes.len() {
-                    let n = sizes[i % sizes.len()].min(bytes.len() - off);
-                    let data = heapless::Vec::from_slice(&bytes[off..off + n]).unwrap();
-                    let (ack, _) = run.send(
-                        u.tag,
-                        Command::CalChunk {
-                            offset: off as u16,
-                            data,
-                        },
-                    );
-                    assert_eq!(ack.result, Ok(()), "CalChunk at {off}");
-                    off += n;
-                    i += 1;
-                }
-                let (ack, out) = run.send(u.tag, Command::CalCommit);
-                let corrupted = u.corrupt.is_some_and(|(_, x)| x != 0);
-                let valid = !corrupted && CalibrationTable::<GROUPS>::decode(&bytes).is_ok();
-                if valid {
-                    assert_eq!(ack.result, Ok(()), "commit of a valid table");
-                    assert_eq!(*run.p.calibration(), table);
-                    assert_eq!(run.p.calibration_source(), CalSource::Uploaded);
-                    assert_eq!(out, [Output::PersistCalibration { tag: u.tag }]);
-                } else {
-                    assert!(
-                        ack.result.is_err(),
-                        "commit of a corrupted/invalid table accepted"
-                    );
-                    assert_eq!(*run.p.calibration(), before);
-                    assert_eq!(run.p.calibration_source(), before_source);
-                    assert!(
-                        !out.iter()
-                            .any(|o| matches!(o, Output::PersistCalibration { .. }))
-                    );
-                }
-            }
+            Op::Upload(u) => upload(&mut run, u),
             Op::Poll(n) => {
                 run.drain(*n);
             }
@@ -394,5 +326,77 @@ fn check(input: Input) {
             }
         }
         run.check_monotonic();
+    }
+}
+
+/// A calibration table uploaded in chunks, perhaps corrupted: committed exactly when it is valid, and then in
+/// force and to be persisted; otherwise the calibration in force is unchanged.
+fn upload(run: &mut Run, u: &Upload) {
+    let mut table = CalibrationTable::<GROUPS>::factory();
+    table.cal_id = u.cal_id;
+    table.raw_min = i32::from(u.raw_min);
+    let g = &mut table.groups[usize::from(u.group) % GROUPS];
+    g.gyro_bias_q12[usize::from(u.group) % 4] = u.bias;
+    g.accel_matrix_q12[usize::from(u.group) % 3][0] += i32::from(u.gain);
+    let mut buf = [0u8; encoded_len_max(GROUPS)];
+    let mut bytes = table.encode(&mut buf).unwrap().to_vec();
+    let crc = crc32c(&bytes);
+    if let Some((at, x)) = u.corrupt {
+        let n = bytes.len();
+        bytes[usize::from(at) % n] ^= x;
+    }
+    let before = *run.p.calibration();
+    let before_source = run.p.calibration_source();
+    let (ack, _) = run.send(
+        u.tag,
+        Command::CalBegin {
+            len: bytes.len() as u16,
+            crc,
+        },
+    );
+    assert_eq!(ack.result, Ok(()), "CalBegin of a table");
+    let sizes: Vec<usize> = if u.chunk_sizes.is_empty() {
+        vec![CAL_CHUNK_MAX]
+    } else {
+        u.chunk_sizes
+            .iter()
+            .map(|&s| usize::from(s).clamp(1, CAL_CHUNK_MAX))
+            .collect()
+    };
+    let mut off = 0;
+    let mut i = 0;
+    while off < bytes.len() {
+        let n = sizes[i % sizes.len()].min(bytes.len() - off);
+        let data = heapless::Vec::from_slice(&bytes[off..off + n]).unwrap();
+        let (ack, _) = run.send(
+            u.tag,
+            Command::CalChunk {
+                offset: off as u16,
+                data,
+            },
+        );
+        assert_eq!(ack.result, Ok(()), "CalChunk at {off}");
+        off += n;
+        i += 1;
+    }
+    let (ack, out) = run.send(u.tag, Command::CalCommit);
+    let corrupted = u.corrupt.is_some_and(|(_, x)| x != 0);
+    let valid = !corrupted && CalibrationTable::<GROUPS>::decode(&bytes).is_ok();
+    if valid {
+        assert_eq!(ack.result, Ok(()), "commit of a valid table");
+        assert_eq!(*run.p.calibration(), table);
+        assert_eq!(run.p.calibration_source(), CalSource::Uploaded);
+        assert_eq!(out, [Output::PersistCalibration { tag: u.tag }]);
+    } else {
+        assert!(
+            ack.result.is_err(),
+            "commit of a corrupted/invalid table accepted"
+        );
+        assert_eq!(*run.p.calibration(), before);
+        assert_eq!(run.p.calibration_source(), before_source);
+        assert!(
+            !out.iter()
+                .any(|o| matches!(o, Output::PersistCalibration { .. }))
+        );
     }
 }

@@ -213,6 +213,51 @@ struct Seen {
     fused_reports: u32,
 }
 
+impl Seen {
+    /// Counts the situations `last` shows.
+    fn note(&mut self, last: &FusedSample) {
+        let (hg, ha) = (last.health.gyro, last.health.accel);
+        self.stuck += u32::from(hg.stuck != 0);
+        self.saturated += u32::from(ha.saturated != 0);
+        self.outlier_gyro += u32::from(hg.outlier != 0);
+        self.outlier_accel += u32::from(ha.outlier != 0);
+        self.invalid += u32::from(!last.valid());
+        self.few += u32::from(last.used.iter().any(|&u| (1..=4).contains(&u)));
+    }
+
+    /// Every situation occurred at least once.
+    fn assert_all(&self) {
+        let Seen {
+            stuck,
+            saturated,
+            outlier_gyro,
+            outlier_accel,
+            invalid,
+            few,
+            unequal_weights,
+            allan_reports,
+            fault_reports,
+            health_reports,
+            fused_reports,
+        } = *self;
+        for (what, count) in [
+            ("stuck", stuck),
+            ("saturated", saturated),
+            ("gyro outlier", outlier_gyro),
+            ("accel outlier", outlier_accel),
+            ("invalid", invalid),
+            ("few sensors", few),
+            ("unequal weights", unequal_weights),
+            ("Allan reports", allan_reports),
+            ("fault reports", fault_reports),
+            ("health reports", health_reports),
+            ("fused reports", fused_reports),
+        ] {
+            assert!(count > 0, "the stream never had: {what}");
+        }
+    }
+}
+
 struct Run {
     p: HostPipeline,
     h: Fnv,
@@ -398,14 +443,7 @@ fn golden_run(config: PipelineConfig, n: usize, seed: u64) -> (u64, Vec<String>)
         assert_eq!(bytes.len(), FRAME_LEN);
         let last = *r.p.last_fused();
         r.h.fused(&last);
-        let (hg, ha) = (last.health.gyro, last.health.accel);
-        let seen = &mut r.seen;
-        seen.stuck += u32::from(hg.stuck != 0);
-        seen.saturated += u32::from(ha.saturated != 0);
-        seen.outlier_gyro += u32::from(hg.outlier != 0);
-        seen.outlier_accel += u32::from(ha.outlier != 0);
-        seen.invalid += u32::from(!last.valid());
-        seen.few += u32::from(last.used.iter().any(|&u| (1..=4).contains(&u)));
+        r.seen.note(&last);
     }
     r.command(
         7,
@@ -418,34 +456,7 @@ fn golden_run(config: PipelineConfig, n: usize, seed: u64) -> (u64, Vec<String>)
     r.command(8, Command::HealthRequest { detail: true });
     r.checkpoint();
     println!("{:?}", r.seen);
-    let Seen {
-        stuck,
-        saturated,
-        outlier_gyro,
-        outlier_accel,
-        invalid,
-        few,
-        unequal_weights,
-        allan_reports,
-        fault_reports,
-        health_reports,
-        fused_reports,
-    } = r.seen;
-    for (what, count) in [
-        ("stuck", stuck),
-        ("saturated", saturated),
-        ("gyro outlier", outlier_gyro),
-        ("accel outlier", outlier_accel),
-        ("invalid", invalid),
-        ("few sensors", few),
-        ("unequal weights", unequal_weights),
-        ("Allan reports", allan_reports),
-        ("fault reports", fault_reports),
-        ("health reports", health_reports),
-        ("fused reports", fused_reports),
-    ] {
-        assert!(count > 0, "the stream never had: {what}");
-    }
+    r.seen.assert_all();
     (r.h.0, r.lines)
 }
 

@@ -154,7 +154,7 @@ fn upload_verify_commit() {
 }
 
 #[test]
-fn refusals_are_typed_and_change_nothing() {
+fn bad_headers_are_refused_typed_and_write_nothing() {
     let k = key();
     let pk = k.verifying_key().to_bytes();
     let c = ctx(&pk);
@@ -212,7 +212,19 @@ fn refusals_are_typed_and_change_nothing() {
         UpdateReply::Refused(UpdateError::NotOpen)
     );
     assert_eq!(rx.status(&mut dfu, &c, &mut boot).counters.refused, 7);
+}
 
+/// Requests out of their order, while not idle, or with a bad chunk are refused, typed, and change nothing.
+#[test]
+fn requests_out_of_order_are_refused_typed() {
+    let k = key();
+    let pk = k.verifying_key().to_bytes();
+    let c = ctx(&pk);
+    let (mut dfu, mut boot, mut rx) = (Dfu::erased(3), Boot::default(), Receiver::default());
+    let open = |h: [u8; image::OPEN_LEN]| UpdateRequest::Open {
+        header: h,
+        restart: false,
+    };
     // Not idle: no erase. Out of order erase. Truncated upload: no verify, no commit.
     let (header, payload) = image(5000, 4, BOARD, &k);
     assert!(matches!(
