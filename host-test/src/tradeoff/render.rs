@@ -43,7 +43,7 @@ struct Point {
     y: f64,
     bar: Option<(f64, f64)>,
     color: RGBColor,
-    /// Label on the left of the point (the first board's, so that two boards of similar mass do not overlap).
+    /// Label on the left of the point (the board of least mass or power, so that two boards' labels do not overlap).
     left: bool,
 }
 
@@ -81,8 +81,10 @@ fn points(t: &Tradeoff, gyro: bool, by_power: bool) -> Vec<Point> {
     let Some((_, cluster, single)) = t.placement.mean.iter().find(|m| m.0 == kind) else {
         return pts;
     };
-    for (i, b) in t.budgets.iter().enumerate() {
-        let x = if by_power { b.power_w } else { b.mass_g };
+    let x_of = |b: &super::board::Budget| if by_power { b.power_w } else { b.mass_g };
+    let leftmost = t.budgets.iter().map(x_of).fold(f64::INFINITY, f64::min);
+    for b in &t.budgets {
+        let x = x_of(b);
         for (what, f, color) in [
             ("cluster", cluster, CLUSTER),
             ("single sensor", single, SINGLE),
@@ -94,7 +96,7 @@ fn points(t: &Tradeoff, gyro: bool, by_power: bool) -> Vec<Point> {
                 y: f.bias_instability.value,
                 bar: Some((f.bias_instability.lo, f.bias_instability.hi)),
                 color,
-                left: i == 0 && t.budgets.len() > 1,
+                left: t.budgets.len() > 1 && x == leftmost,
             });
         }
     }
