@@ -25,5 +25,6 @@ pub mod simcli;
 pub mod stats;
 pub mod testrng;
 pub mod thermal_check;
+pub mod tradeoff;
 pub mod twin;
 pub mod update;

@@ -64,7 +64,8 @@ pub enum PlotError {
 
 static FONT: OnceLock<Result<(), PlotError>> = OnceLock::new();
 
-fn ensure_font() -> Result<(), PlotError> {
+/// Registers the plot font once (see the module docs); every drawing calls it first.
+pub(crate) fn ensure_font() -> Result<(), PlotError> {
     FONT.get_or_init(|| {
         let candidates = [
             std::env::var("GROUND_FONT").unwrap_or_default(),

@@ -4,13 +4,18 @@
 //! 25 MHz SysTick advances once per 5 instructions, so the counts are exact and repeatable. They are instructions,
 //! not cycles: an STM32F405 at 168 MHz needs at least as many cycles (loads, multiplies, taken branches and flash
 //! wait states cost more than one).
+//!
+//! The figures are also written, as JSON, to `target/mcu-bench.json` (relative to the directory `cargo run` is
+//! started in, through semihosting's `SYS_OPEN`): `.ci/run` compares that file with the committed
+//! `docs/mcu-bench.json`, which `host_test::tradeoff` reads for the MCU's duty cycle and power.
 #![no_std]
 #![no_main]
 
+use core::fmt::Write as _;
 use cortex_m::peripheral::SYST;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::entry;
-use cortex_m_semihosting::{debug, hprintln};
+use cortex_m_semihosting::{debug, hprintln, nr, syscall};
 use shared::bench::BenchFrames;
 use shared::calib::thermal::ThermalComp;
 use shared::calib::{AXES, CalibrationTable, RawCounts};
@@ -73,6 +78,16 @@ fn main() -> ! {
     let Some(bank) = cortex_m::singleton!(: PipelineMemory = PipelineMemory::new()) else {
         exit(false);
     };
+    let Some(json) = cortex_m::singleton!(: Json = Json::new()) else {
+        exit(false);
+    };
+    // `format_args!` of constants only: a failed write (buffer full) is reported when the file is written.
+    let _ = write!(
+        json,
+        "{{\"tool\": \"mcu-bench\", \"mcu_hz\": {:.0}, \"configs\": [",
+        MCU_HZ
+    );
+    json.after_header = json.len;
     let paper = {
         let mut c = PipelineConfig::DEFAULT;
         c.fusion.mode = FusionMode::Equal;
@@ -83,7 +98,7 @@ fn main() -> ! {
         ("default (weighted, robust)", PipelineConfig::DEFAULT),
         ("seed paper (equal mean, no exclusion)", paper),
     ] {
-        count(name, config, None, Temperature::Steady, bank);
+        count(name, config, None, Temperature::Steady, bank, json);
     }
     // A flight table: thermal terms on every channel and fixed weights. The board's sensor reads 0.01 °C and an
     // orbit changes it about once a second (one frame in ~600): "steady" is the usual frame; "new every frame" the
@@ -105,9 +120,18 @@ fn main() -> ! {
             Some(&table),
             temperature,
             bank,
+            json,
         );
     }
     stages(bank);
+    let _ = writeln!(json, "]}}");
+    if !json.write_file("target/mcu-bench.json\0") {
+        hprintln!(
+            "could not write target/mcu-bench.json (buffer full or semihosting refused the file)"
+        );
+        exit(false);
+    }
+    hprintln!("written: target/mcu-bench.json");
     exit(true)
 }
 
@@ -144,6 +168,7 @@ fn count(
     table: Option<&CalibrationTable<GROUPS>>,
     temperature: Temperature,
     bank: &mut PipelineMemory,
+    json: &mut Json,
 ) {
     // Each configuration starts from an empty bank (`Pipeline::new` takes it as it is).
     bank.allan.reset();
@@ -204,6 +229,22 @@ fn count(
         mean * rate_hz / 1e6,
         100.0 * mean * rate_hz / MCU_HZ,
         MCU_HZ / 1e6
+    );
+    let _ = write!(
+        json,
+        "{}{{\"name\": \"{}\", \"instructions_per_frame\": {:.1}, \"batch_min\": {}, \"batch_max\": {}, \
+         \"frames\": {}, \"frame_rate_hz\": {:.3}}}",
+        if json.len == json.after_header {
+            ""
+        } else {
+            ", "
+        },
+        name,
+        mean,
+        min,
+        max,
+        frames,
+        rate_hz
     );
     // Every frame must have gone through: a count over rejected frames would be a count of the wrong work.
     if counters.crc_errors != 0
@@ -295,6 +336,65 @@ fn stages(bank: &mut PipelineMemory) {
     let frames = (BATCHES * BATCH) as u64;
     for (name, total) in NAMES.iter().zip(totals) {
         hprintln!("  {}: {} instructions per frame", name, total / frames);
+    }
+}
+
+/// The JSON report, built in a fixed buffer (no heap) and written to a host file at the end.
+struct Json {
+    buf: [u8; 2048],
+    len: usize,
+    /// `len` after the header: the first configuration has no leading comma.
+    after_header: usize,
+    /// A write did not fit.
+    overflow: bool,
+}
+
+impl Json {
+    const fn new() -> Self {
+        Json {
+            buf: [0; 2048],
+            len: 0,
+            after_header: 0,
+            overflow: false,
+        }
+    }
+
+    /// Writes the buffer to the host file `path` (NUL-terminated); `false` if it overflowed or the host refused.
+    fn write_file(&self, path: &str) -> bool {
+        let Some(text) = self.buf.get(..self.len) else {
+            return false;
+        };
+        if self.overflow || !path.ends_with('\0') {
+            return false;
+        }
+        // SAFETY: semihosting SYS_OPEN/WRITE/CLOSE with a NUL-terminated name and a buffer that outlive the calls;
+        // the host only reads them.
+        unsafe {
+            let fd = syscall!(OPEN, path.as_ptr(), nr::open::W_TRUNC, path.len() - 1) as isize;
+            if fd < 0 {
+                return false;
+            }
+            let left = syscall!(WRITE, fd as usize, text.as_ptr(), text.len());
+            let closed = syscall!(CLOSE, fd as usize);
+            left == 0 && closed == 0
+        }
+    }
+}
+
+impl core::fmt::Write for Json {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        let end = self.len + s.len();
+        match self.buf.get_mut(self.len..end) {
+            Some(dst) => {
+                dst.copy_from_slice(s.as_bytes());
+                self.len = end;
+                Ok(())
+            }
+            None => {
+                self.overflow = true;
+                Err(core::fmt::Error)
+            }
+        }
     }
 }
 

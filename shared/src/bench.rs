@@ -11,8 +11,8 @@ use crate::wire::frame::{FRAME_LEN, GROUPS, RAW_PER_GROUP};
 pub const NOISE_CODES: u32 = 20;
 
 /// An endless stream of plausible frames: every group at rest (nominal codes for 0 °/s and −1 g on z, the board's
-/// nominal analog chain) plus independent uniform noise of ±[`NOISE_CODES`] codes on every channel, decimation 15,
-/// 20.00 °C, consecutive sequence numbers.
+/// nominal analog chain) plus independent uniform noise of ±[`NOISE_CODES`] codes on every channel, decimation
+/// [`FLIGHT_DECIMATION`](crate::wire::clock::FLIGHT_DECIMATION) (15), 20.00 °C, consecutive sequence numbers.
 #[derive(Clone, Debug)]
 pub struct BenchFrames {
     state: u64,
@@ -54,7 +54,7 @@ impl BenchFrames {
         }
         let frame = FrameRepr {
             seq: self.seq,
-            decimation: 15,
+            decimation: crate::wire::clock::FLIGHT_DECIMATION,
             temp_cdeg: Some(2000),
             raw,
         };

@@ -13,7 +13,7 @@
 //!
 //! The phases, one module each: [`replay`] simulates the record and drives the flight core with it; [`stats`]
 //! decodes what the core sent and computes the tables; [`diagnosis`] runs the sim-to-real diagnosis and the twin
-//! on the same record; [`files`] writes the plot and the files; [`report`] renders the Markdown report.
+//! on the same record, and places it among commercial IMUs (`crate::tradeoff`, `tradeoff/`); [`files`] writes the plot and the files; [`report`] renders the Markdown report.
 
 mod diagnosis;
 mod files;
@@ -73,6 +73,9 @@ pub struct DemoResult {
     pub largest_shared_flicker: Option<(String, f64)>,
     /// The sim-to-real loop on the same record: model, twin with and without effects, compared with the record.
     pub twin: crate::twin::LoopSummary,
+    /// The seed paper's Figures 9–10 on the same record (`tradeoff/`): the terminal summary of
+    /// [`crate::tradeoff::run`] (the figures, the boards' power and mass, the battery check).
+    pub tradeoff: String,
     /// On-board thermal compensation, end to end (`thermal_check`, quick form): a board calibrated on a ramp, an
     /// orbit's temperature cycle through the flight core with and without the table.
     pub thermal: crate::thermal_check::ThermalCheck,
@@ -113,6 +116,9 @@ pub enum DemoError {
     /// The thermal check failed.
     #[error(transparent)]
     Thermal(#[from] crate::thermal_check::ThermalCheckError),
+    /// The trade-off figures failed.
+    #[error(transparent)]
+    Tradeoff(#[from] crate::tradeoff::TradeoffError),
 }
 
 impl DemoError {
@@ -152,8 +158,15 @@ pub fn run(
     files::write_plot(out, &decoded, &tables)?;
     let diagnosed =
         diagnosis::of_record(&streamed.record, &out.join("diagnose"), &out.join("twin"))?;
+    let tradeoff = crate::tradeoff::run(
+        &streamed.record,
+        "the seed experiment (simulated)",
+        &crate::tradeoff::Inputs::default(),
+        &out.join("tradeoff"),
+    )?;
     let thermal = crate::thermal_check::run(&crate::thermal_check::ThermalCheckOptions::QUICK)?;
     let result = DemoResult {
+        tradeoff: crate::tradeoff::render::summary(&tradeoff),
         thermal,
         diagnosis: diagnosed.lines,
         largest_shared_flicker: diagnosed.largest_shared_flicker,

@@ -12,6 +12,7 @@ pub fn report(r: &DemoResult, opts: DemoOptions) -> String {
     tables_section(&mut s, r);
     fit_section(&mut s, r);
     diagnosis_section(&mut s, r);
+    tradeoff_section(&mut s, r);
     checks_section(&mut s, r);
     s
 }
@@ -195,6 +196,17 @@ fn diagnosis_section(s: &mut String, r: &DemoResult) {
     );
 }
 
+/// The seed paper's Figures 9–10 on the same record.
+fn tradeoff_section(s: &mut String, r: &DemoResult) {
+    let _ = writeln!(
+        s,
+        "## Among commercial IMUs (`tradeoff/`, `docs/tradeoff.md`)\n\nThe paper's Figures 9–10: bias instability \
+         against mass and power (`tradeoff_mass.png`, `tradeoff_power.png`), the seed board with its Raspberry Pi and \
+         ours with the MCU (power from the duty cycle mcu-bench measured):\n\n```text\n{}```\n",
+        r.tradeoff
+    );
+}
+
 /// The thermal check and the checks.
 fn checks_section(s: &mut String, r: &DemoResult) {
     let _ = writeln!(
@@ -213,6 +225,6 @@ fn checks_section(s: &mut String, r: &DemoResult) {
     );
     let _ = writeln!(
         s,
-        "- Files: `table1.csv`, `table2.csv`, `seed_fit.csv`, `adev.png`, `demo.json`, `telemetry.kiss` (what the MCU would have sent; `ground decode` reads it), `diagnose/` (report, plot, JSON), `twin/` (model, comparisons, plot)."
+        "- Files: `table1.csv`, `table2.csv`, `seed_fit.csv`, `adev.png`, `demo.json`, `telemetry.kiss` (what the MCU would have sent; `ground decode` reads it), `diagnose/` (report, plot, JSON), `twin/` (model, comparisons, plot), `tradeoff/` (figures, table, JSON)."
     );
 }

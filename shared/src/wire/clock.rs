@@ -13,6 +13,11 @@ use core::num::{NonZeroU64, NonZeroU128};
 /// base periods (N = 15: 604.8 frames/s). The one definition of this rate; everything else derives from it.
 pub const FPGA_BASE_RATE_MILLIHZ: u64 = 9_676_800;
 
+/// The decimation N our board flies at (a frame every N + 1 base periods: 604.8 frames/s, averaged 32 to one
+/// output at the seed's 18.9 Hz). The benchmark stream (`shared::bench`, the frames `mcu-bench` counts) and the
+/// SITL's default use it; the ground's power budget (`host_test::tradeoff`) takes the frame rate from it.
+pub const FLIGHT_DECIMATION: u16 = 15;
+
 /// Frame time keeping (see module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FrameClock {

@@ -11,6 +11,7 @@ mod fw;
 mod import;
 mod replay;
 mod simulate;
+mod tradeoff;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -50,6 +51,9 @@ enum Cmd {
     /// The sim-to-real gap measured directly: two recordings' cluster and typical-sensor Allan deviations compared
     /// per axis and τ (z-scores, the diagnosis's scan verdict), with a plot and JSON.
     Compare(compare::Args),
+    /// The seed paper's Figures 9–10: the recording's bias instability and random walk placed with commercial IMUs
+    /// against mass and power, on the seed board (with its Raspberry Pi) and ours (with the MCU).
+    Tradeoff(tradeoff::Args),
     /// In-orbit update: a new Ed25519 signing key pair (PREFIX.pem, PREFIX.pub).
     FwKeygen(fw::KeygenArgs),
     /// In-orbit update: the signed image of an application ELF.
@@ -90,6 +94,7 @@ fn main() -> ExitCode {
         Cmd::Allan(a) => allan::run(a),
         Cmd::Diagnose(a) => diagnose::run(a),
         Cmd::Compare(a) => compare::run(a),
+        Cmd::Tradeoff(a) => tradeoff::run(a),
         Cmd::FwKeygen(a) => fw::keygen(a),
         Cmd::FwSign(a) => fw::sign(a),
         Cmd::FwUpload(a) => fw::upload(a),
