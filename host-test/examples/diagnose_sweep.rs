@@ -2,11 +2,11 @@
 //! (a development aid for the diagnosis; `cargo run --release -p host-test --example diagnose_sweep -- [SEED] [RATE] [HOURS]`).
 
 use host_test::diagnose::{Options, Report, diagnose};
+use host_test::sim::output::recording;
 use host_test::sim::preset::seed_config;
 use host_test::sim::{
     Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, SimConfig, Thermal,
 };
-use host_test::simcli::recording;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();

@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 rec=${1:-target/bench/seed8h.csv}
 mkdir -p target/bench
-cargo build --release -q -p host-test --bin ground
+cargo build --release -q --bin ground
 csv=${rec%.npy}
 [ "$csv" = "$rec" ] || csv=$csv.csv
 if [ ! -f "$csv" ] && [ ! -f "$rec" ]; then

@@ -1,4 +1,5 @@
-//! Host side of the IMU cluster: replay of recorded frames through `shared`, ground decoding, and the `ground` tool.
+//! Host side of the IMU cluster: replay of recorded frames through `shared`, ground decoding, simulation, calibration
+//! and diagnosis: the library of the `ground` command line (crate `ground`) and of the Python package.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 // Each module names what it imports (a glob hides where a name comes from); preludes and `use super::*` in test
@@ -21,7 +22,6 @@ pub mod recording;
 pub mod replay;
 pub mod seedfit;
 pub mod sim;
-pub mod simcli;
 pub mod stats;
 pub mod testrng;
 pub mod thermal_check;

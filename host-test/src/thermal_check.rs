@@ -16,9 +16,11 @@ use crate::formats::framelog::FrameLog;
 use crate::formats::telemetry::TelemetryLog;
 use crate::replay::{ReplayOptions, replay};
 use crate::sim::SimError;
-use crate::sim::{Channel, Chunk, SimConfig, Simulator};
-use crate::simcli::SimCliError;
-use crate::simcli::{self, EffectArgs, TemperatureProfile};
+use crate::sim::effects::EffectsError;
+use crate::sim::output::frame_opts;
+use crate::sim::{
+    Axis, Channel, Chunk, Effects, SimConfig, Simulator, TemperatureProfile, ThermalCoef,
+};
 use shared::bus::BusConfig;
 use shared::calib::{AXES, CalibrationTable};
 use shared::pipeline::PipelineConfig;
@@ -30,9 +32,9 @@ pub enum ThermalCheckError {
     /// The simulator refused a configuration.
     #[error(transparent)]
     Sim(#[from] SimError),
-    /// The thermal flags were refused.
+    /// The thermal effects were refused.
     #[error(transparent)]
-    Flags(#[from] SimCliError),
+    Effects(#[from] EffectsError),
     /// The thermal fit or the calibration table failed.
     #[error(transparent)]
     Calib(#[from] CalibError),
@@ -188,8 +190,9 @@ fn ratio(a: &[f64], b: &[f64]) -> Vec<f64> {
     a.iter().zip(b).map(|(x, y)| x / y).collect()
 }
 
-/// The configuration `ground simulate` builds for the seed preset with the thermal flags, for the board
-/// of `o` with noise seed `seed`.
+/// The configuration `ground simulate` builds for the seed preset with the thermal flags
+/// (`--thermal gyro:0.05:0.02 --thermal accel:0.0005:0.0002 --temperature …`), for the board of `o` with noise seed
+/// `seed`.
 pub fn config(
     o: &ThermalCheckOptions,
     seed: u64,
@@ -199,12 +202,24 @@ pub fn config(
     let mut cfg = crate::sim::preset::seed_config(seed)?;
     cfg.rate_hz = o.rate_hz;
     cfg.samples = (hours * 3600.0 * o.rate_hz).round() as u64;
-    cfg.frames = simcli::frame_opts(o.rate_hz, crate::FPGA_BASE_RATE_HZ);
+    cfg.frames = frame_opts(o.rate_hz, crate::FPGA_BASE_RATE_HZ);
     cfg.board_seed = Some(o.board_seed);
-    EffectArgs {
-        thermal: vec!["gyro:0.05:0.02".into(), "accel:0.0005:0.0002".into()],
+    let (gyro, accel) = Axis::ALL.split_at(3);
+    Effects {
+        thermal: vec![
+            ThermalCoef {
+                axes: gyro.to_vec(),
+                coef: 0.05,
+                sd: 0.02,
+            },
+            ThermalCoef {
+                axes: accel.to_vec(),
+                coef: 0.0005,
+                sd: 0.0002,
+            },
+        ],
         temperature: Some(temp),
-        ..EffectArgs::default()
+        ..Effects::default()
     }
     .apply(&mut cfg)?;
     Ok(cfg)
@@ -309,7 +324,7 @@ pub fn run(o: &ThermalCheckOptions) -> Result<ThermalCheck> {
     drop(iso_bytes);
 
     let frame_rate = crate::FPGA_BASE_RATE_HZ
-        / (f64::from(simcli::frame_opts(o.rate_hz, crate::FPGA_BASE_RATE_HZ).decimation) + 1.0);
+        / (f64::from(frame_opts(o.rate_hz, crate::FPGA_BASE_RATE_HZ).decimation) + 1.0);
     let tau0 = f64::from(fpo) / frame_rate;
     let mut an = allan::Analyzer::new();
     let mut dev = |rec: &[[f64; AXES]], a: usize| -> Vec<(f64, f64)> {

@@ -5,9 +5,9 @@
 
 use host_test::calibrate::{RateTableOptions, board_records, fit_rate_table, standard_inputs};
 use host_test::formats::framelog::FrameLog;
+use host_test::sim::output::{frame_opts, write};
 use host_test::sim::preset::seed_config;
 use host_test::sim::{CalSpread, Simulator};
-use host_test::simcli::{frame_opts, write};
 
 /// A test input: rate (°/s), specific force (g), the fit's standard errors of the checked output, gyro or accel.
 type Case = ([f64; 3], [f64; 3], [f64; 3], bool);

@@ -10,10 +10,10 @@ mod common;
 use common::effects::*;
 use host_test::diagnose::{Effect, Groups, Options, Report, diagnose};
 use host_test::recording::Recording;
+use host_test::sim::output::recording;
 use host_test::sim::{
     Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, SimConfig,
 };
-use host_test::simcli::recording;
 
 fn run(cfg: SimConfig, keep_temp: bool) -> Report {
     let mut rec: Recording = recording(cfg).unwrap();

@@ -1,5 +1,5 @@
 //! Issue 28 item 4: a sensor's bandwidth in the baseline noise model. Band-limited gyros (every group's gyros through
-//! a single pole at 0.8 Hz on the 8-h, 5 Hz, 16-group record of the seed preset, `simcli::recording_filtered`, the
+//! a single pole at 0.8 Hz on the 8-h, 5 Hz, 16-group record of the seed preset, `sim::output::recording_filtered`, the
 //! filter of `ground simulate --bandwidth-hz gyro:0.8`) must get their cut-off fitted back (within 5 %: the grid has
 //! 40 steps per decade, ±2.9 %), nothing named (a filter on every sensor changes each sensor's Allan variance, not
 //! the √N relation), and the held-out excess gap closed; the unfiltered record of the same seed shows no bandwidth.
@@ -9,7 +9,7 @@ mod common;
 use common::effects::*;
 use host_test::diagnose::{Options, Report, diagnose};
 use host_test::sim::Axis;
-use host_test::simcli::{Bandwidth, recording_filtered};
+use host_test::sim::output::{Bandwidth, recording_filtered};
 
 const CUTOFF_HZ: f64 = 0.8;
 
@@ -64,16 +64,5 @@ fn an_unfiltered_record_shows_no_bandwidth() {
     let r = run(&[]);
     for a in &r.axes {
         assert_eq!(a.bandwidth_hz, None, "{}", a.axis);
-    }
-}
-
-#[test]
-fn bandwidth_option_parses_and_refuses_bad_values() {
-    let b = host_test::simcli::parse_bandwidth("3-4/gx,gy:2.5").unwrap();
-    assert_eq!(b.groups, Some(vec![3, 4]));
-    assert_eq!(b.axes, vec![Axis::GyroX, Axis::GyroY]);
-    assert_eq!(b.cutoff_hz, 2.5);
-    for bad in ["gyro", "gyro:0", "gyro:-1", "gyro:nan", "99/gx:1", "gq:1"] {
-        assert!(host_test::simcli::parse_bandwidth(bad).is_err(), "{bad}");
     }
 }

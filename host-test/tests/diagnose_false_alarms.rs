@@ -20,9 +20,9 @@
 
 use host_test::diagnose::{Options, diagnose};
 use host_test::recording::Recording;
+use host_test::sim::output::recording;
 use host_test::sim::preset::seed_config;
 use host_test::sim::{CHANNELS, PartSpread, SimConfig};
-use host_test::simcli::recording;
 use host_test::testrng::TestRng;
 use std::collections::BTreeMap;
 

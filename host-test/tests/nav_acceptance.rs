@@ -9,8 +9,8 @@
 //! (`dither`); the noiseless numbers are printed beside them.
 use host_test::replay::{ReplayOptions, replay};
 use host_test::sim::motion::{M3, Motion, mul, mul_t};
+use host_test::sim::output;
 use host_test::sim::{CHANNELS, NoiseParams, SimConfig};
-use host_test::simcli;
 use shared::bus::BusConfig;
 use shared::calib::CalibrationTable;
 use shared::fuse::FusionConfig;
@@ -41,9 +41,9 @@ fn frames_with(
 ) -> Vec<u8> {
     let mut cfg = SimConfig::new(1, FPS, (seconds * FPS).round() as u64, noise);
     cfg.motion = motion;
-    cfg.frames = simcli::frame_opts(FPS, host_test::FPGA_BASE_RATE_HZ);
+    cfg.frames = output::frame_opts(FPS, host_test::FPGA_BASE_RATE_HZ);
     let path = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
-    simcli::write(cfg, &path, |_| {}).unwrap();
+    output::write(cfg, &path, |_| {}).unwrap();
     std::fs::read(&path).unwrap()
 }
 

@@ -5,8 +5,9 @@
 
 use host_test::calibrate::{CalibError, ThermalOptions, fit_thermal};
 use host_test::formats::framelog::FrameLog;
-use host_test::sim::{Chunk, NoiseParams, SimConfig, Simulator};
-use host_test::simcli::{EffectArgs, parse_temperature};
+use host_test::sim::{
+    Axis, Chunk, Effects, NoiseParams, SimConfig, Simulator, TemperatureProfile, ThermalCoef,
+};
 use host_test::thermal_check::{ThermalCheckOptions, run};
 
 #[test]
@@ -49,10 +50,18 @@ fn thermal_compensation_end_to_end() {
 #[test]
 fn a_record_spanning_less_than_10_c_is_refused() {
     let mut cfg = SimConfig::new(1, 18.9, 2000, [NoiseParams::white(0.01); 7]);
-    EffectArgs {
-        thermal: vec!["gyro:0.05".into()],
-        temperature: Some(parse_temperature("orbit:mean_c=20,amp_c=4.9,period_min=1").unwrap()),
-        ..EffectArgs::default()
+    Effects {
+        thermal: vec![ThermalCoef {
+            axes: Axis::ALL[..3].to_vec(),
+            coef: 0.05,
+            sd: 0.0,
+        }],
+        temperature: Some(TemperatureProfile::Orbit {
+            mean_c: 20.0,
+            amp_c: 4.9,
+            period_min: 1.0,
+        }),
+        ..Effects::default()
     }
     .apply(&mut cfg)
     .unwrap();
@@ -91,7 +100,11 @@ fn a_model_fitted_by_the_diagnosis_gives_the_boards_thermal_terms() {
     use host_test::sim::Channel;
     use shared::calib::CalibrationTable;
     let o = ThermalCheckOptions::QUICK;
-    let ramp = parse_temperature("ramp:from_c=-10,to_c=50,hours=3").unwrap();
+    let ramp = TemperatureProfile::Ramp {
+        from_c: -10.0,
+        to_c: 50.0,
+        hours: 3.0,
+    };
     let cfg = host_test::thermal_check::config(&o, o.ramp_seed, o.ramp_hours, ramp).unwrap();
     let (bytes, sim) = host_test::thermal_check::frames(cfg).unwrap();
     let dir = std::env::temp_dir().join(format!("from-model-{}", std::process::id()));

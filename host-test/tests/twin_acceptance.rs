@@ -8,10 +8,10 @@ mod common;
 
 use common::effects::*;
 use host_test::diagnose::{Options, diagnose};
+use host_test::sim::output::{Bandwidth, recording_filtered};
 use host_test::sim::{
     Axis, Channel, CommonDrift, CommonMode, DriftKind, Outlier, PartSpread, SimConfig,
 };
-use host_test::simcli::{Bandwidth, recording_filtered};
 use host_test::twin::{self, ClusterModel, CompareOptions, PlayOptions};
 
 /// B against a model fitted on A: both records' estimation errors count.

@@ -17,7 +17,7 @@ fn weights_for_long_tau_leave_out_a_drifting_sensor() {
     let mut cfg = host_test::sim::preset::seed_config(3).unwrap();
     cfg.rate_hz = rate_hz;
     cfg.samples = (4.0 * 3600.0 * rate_hz) as u64;
-    cfg.frames = host_test::simcli::frame_opts(rate_hz, host_test::FPGA_BASE_RATE_HZ);
+    cfg.frames = host_test::sim::output::frame_opts(rate_hz, host_test::FPGA_BASE_RATE_HZ);
     cfg.outliers.push(Outlier {
         group: 5,
         channel: Channel::GyroAX,
@@ -66,7 +66,9 @@ fn weights_for_long_tau_leave_out_a_drifting_sensor() {
     let tau0 = 8.0
         / (host_test::FPGA_BASE_RATE_HZ
             / f64::from(
-                host_test::simcli::frame_opts(rate_hz, host_test::FPGA_BASE_RATE_HZ).decimation + 1,
+                host_test::sim::output::frame_opts(rate_hz, host_test::FPGA_BASE_RATE_HZ)
+                    .decimation
+                    + 1,
             ));
     let adev = |rec: &[[f64; 6]], a: usize, m: usize| {
         let y: Vec<f64> = rec.iter().map(|v| v[a]).collect();

@@ -6,7 +6,7 @@ use host_test::allan::{self as allan_lib, DevKind, TauSpec};
 use host_test::formats::telemetry::TelemetryLog;
 use host_test::formats::telemetry::tables::{Table, Values};
 use host_test::recording::Recording;
-use host_test::{diagnose as diag, load, seedfit, sim, simcli, twin};
+use host_test::{diagnose as diag, load, seedfit, sim, twin};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -340,7 +340,7 @@ fn simulate_preset(
     };
     cfg.rate_hz = rate.unwrap_or(cfg.rate_hz);
     cfg.samples = sample_count(n, secs, cfg.rate_hz, cfg.samples as usize)? as u64;
-    simcli::recording(cfg).map_err(lib_err)
+    sim::output::recording(cfg).map_err(lib_err)
 }
 
 /// Simulates a cluster recording: a [`Model`] played (`ground simulate --model`) or a preset (`"seed"`,

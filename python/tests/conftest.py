@@ -22,7 +22,7 @@ def _ground() -> pathlib.Path:
     found = shutil.which("ground")
     if found:
         return pathlib.Path(found)
-    pytest.fail("no `ground` binary: run `cargo build -p host-test` first or set GROUND=/path/to/ground")
+    pytest.fail("no `ground` binary: run `cargo build --bin ground` first or set GROUND=/path/to/ground")
 
 
 @pytest.fixture(scope="session")

@@ -5,8 +5,8 @@ use super::{DemoError, DemoOptions};
 use crate::recording::Recording;
 use crate::replay::{HostCore, ReplayOutput};
 use crate::seedfit::{self, AxisFit};
+use crate::sim::output;
 use crate::sim::{Chunk, SimConfig, Simulator};
-use crate::simcli;
 use shared::bus::BusConfig;
 use shared::calib::{AXES, CalibrationTable, RawCounts};
 use shared::pipeline::{ALLAN_CHANNELS, PipelineConfig};
@@ -39,7 +39,7 @@ pub(super) fn seed_config(opts: DemoOptions) -> Result<(Vec<AxisFit>, SimConfig)
     if (opts.hours - 8.0).abs() < 1e-9 {
         cfg.samples = crate::sim::preset::SEED_SAMPLES;
     }
-    cfg.frames = simcli::frame_opts(cfg.rate_hz, crate::FPGA_BASE_RATE_HZ);
+    cfg.frames = output::frame_opts(cfg.rate_hz, crate::FPGA_BASE_RATE_HZ);
     Ok((fits, cfg))
 }
 
@@ -64,7 +64,7 @@ pub(super) fn through_the_core(
     mut progress: impl FnMut(u64, u64),
 ) -> Result<Streamed, DemoError> {
     let total = cfg.samples;
-    let mut record = simcli::RecordingSink::new(total as usize, cfg.thermal.is_some());
+    let mut record = output::RecordingSink::new(total as usize, cfg.thermal.is_some());
     let mut sim = Simulator::new(cfg)?;
     let cal = CalibrationTable::<GROUPS>::factory();
     let mut core = HostCore::new(core_config(), cal, BusConfig::DEFAULT, false);

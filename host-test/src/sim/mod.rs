@@ -12,6 +12,10 @@
 //!   `shared::calib::board::nominal_codes`, and its fixed-point form for the ground.
 //! - [`preset`]: parameters reproducing the seed paper's single-sensor Tables 1 and 2.
 //! - [`motion`]: coning and sculling motions of the board (true attitude, body rate, specific force).
+//! - [`effects`]: cluster effects as typed values ([`Effects`], the board's [`TemperatureProfile`]) added to a
+//!   [`SimConfig`] in one step.
+//! - [`output`]: a simulation written as a frame log or an interchange CSV, or collected in memory as a
+//!   `Recording`, through the outputs' bandwidths ([`Bandwidth`]); the rate and size checks of `ground simulate`.
 //!
 //! Units everywhere: gyro quantities in °/s (densities in (°/s)/√Hz etc.), accelerometer quantities in g, time in
 //! s, temperature in °C. A *sensor* is one raw ADC channel of one group ([`Channel`]); an *axis* is one calibrated
@@ -22,8 +26,10 @@
 
 pub mod calib;
 pub mod cluster;
+pub mod effects;
 pub mod motion;
 pub mod noise;
+pub mod output;
 pub mod preset;
 #[cfg(test)]
 mod tests;
@@ -33,10 +39,12 @@ pub use cluster::{
     Chunk, CommonDrift, CommonMode, DriftKind, FrameOpts, Outlier, PartSpread, Periodic,
     SensorOverride, SimConfig, Simulator, Thermal, csv_header,
 };
+pub use effects::{Effects, TemperatureProfile, ThermalCoef};
 pub use noise::{
     AvarTerms, FlickerBand, FlickerMethod, NoiseModel, NoiseParams, Sampling, SensorNoise,
     expected_avar,
 };
+pub use output::Bandwidth;
 
 use rand_xoshiro::rand_core::SeedableRng;
 use rand_xoshiro::{SplitMix64, Xoshiro256PlusPlus};

@@ -122,7 +122,9 @@ fn median_by(mut xs: Vec<Figures>, key: impl Fn(&Figures) -> f64) -> Option<Figu
 
 /// Places a recording: every column and the cluster mean of every axis analysed as `ground allan` does (ADEV).
 pub fn place(rec: &Recording) -> Result<Placement, TradeoffError> {
-    let tau0 = rec.sample_interval_s().ok_or(recording::AdevError::NoInterval)?;
+    let tau0 = rec
+        .sample_interval_s()
+        .ok_or(recording::AdevError::NoInterval)?;
     let m1 = (1.0 / tau0).round().max(1.0) as usize;
     let mut ms = averaging_factors(&TauSpec::Octave, DevKind::Adev, rec.len());
     ms.push(m1);

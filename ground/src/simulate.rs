@@ -68,7 +68,7 @@ pub struct Args {
     #[arg(long, value_delimiter = ',', num_args = 1..=3, allow_hyphen_values = true)]
     accel_g: Option<Vec<f64>>,
     #[command(flatten)]
-    effects: host_test::simcli::EffectArgs,
+    effects: crate::effects::EffectArgs,
 }
 
 /// Samples from --seconds / --samples / --hours at `rate`, or `default`.
@@ -87,7 +87,8 @@ fn samples_of(a: &Args, rate: f64, default: f64) -> Result<f64> {
 
 /// `--model`: the twin played (`host_test::twin::play`), written as CSV or a frame log.
 fn run_model(a: &Args, path: &std::path::Path) -> Result<()> {
-    use host_test::{simcli, twin};
+    use host_test::sim::output;
+    use host_test::twin;
     if a.effects.any() {
         bail!(
             "--model plays the model's effects: the effect options do not apply (see --without-effects)"
@@ -95,9 +96,9 @@ fn run_model(a: &Args, path: &std::path::Path) -> Result<()> {
     }
     let model = twin::ClusterModel::load(path)?;
     let rate = a.rate.unwrap_or(model.record.rate_hz);
-    let frame_log = simcli::check_rates(&a.out, rate, a.base_rate_hz)?;
+    let frame_log = output::check_rates(&a.out, rate, a.base_rate_hz)?;
     millihz(a.base_rate_hz).context("--base-rate-hz")?;
-    let samples = simcli::check_samples(
+    let samples = output::check_samples(
         samples_of(a, rate, model.record.samples as f64)?,
         rate,
         frame_log,
@@ -126,7 +127,7 @@ fn run_model(a: &Args, path: &std::path::Path) -> Result<()> {
         },
     )?;
     if frame_log {
-        let frames = twin::play::frames(&rec, simcli::frame_opts(rate, a.base_rate_hz).decimation)?;
+        let frames = twin::play::frames(&rec, output::frame_opts(rate, a.base_rate_hz).decimation)?;
         std::fs::write(&a.out, frames).with_context(|| format!("writing {}", a.out.display()))?;
     } else {
         rec.write(&a.out)
@@ -151,7 +152,8 @@ fn run_model(a: &Args, path: &std::path::Path) -> Result<()> {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    use host_test::{seedfit, sim, simcli};
+    use host_test::seedfit;
+    use host_test::sim::{self, output};
     if let Some(m) = &a.model {
         return run_model(&a, m);
     }
@@ -172,7 +174,7 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     cfg.motion = a.motion;
-    let frame_log = simcli::check_rates(&a.out, rate, a.base_rate_hz)?;
+    let frame_log = output::check_rates(&a.out, rate, a.base_rate_hz)?;
     millihz(a.base_rate_hz).context("--base-rate-hz")?;
     cfg.rate_hz = rate;
     let default = if rate == 18.9 {
@@ -181,8 +183,8 @@ pub fn run(a: Args) -> Result<()> {
         (8.0 * 3600.0 * rate).round()
     };
     let samples = samples_of(&a, rate, default)?;
-    cfg.samples = simcli::check_samples(samples, rate, frame_log)?;
-    cfg.frames = simcli::frame_opts(rate, a.base_rate_hz);
+    cfg.samples = output::check_samples(samples, rate, frame_log)?;
+    cfg.frames = output::frame_opts(rate, a.base_rate_hz);
     if frame_log {
         let actual = a.base_rate_hz / (f64::from(cfg.frames.decimation) + 1.0);
         if (actual / rate - 1.0).abs() > 1e-9 {
@@ -208,13 +210,13 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(g) = &a.accel_g {
         cfg.accel_g = xyz(g, "--accel-g")?;
     }
-    a.effects.apply(&mut cfg)?;
+    a.effects.effects()?.apply(&mut cfg)?;
     let bands = a.effects.bandwidths()?;
     cfg.board_seed = a.board_seed;
     let samples = cfg.samples;
     let pb = bar(samples, "samples");
     let t0 = std::time::Instant::now();
-    simcli::write_filtered(cfg, &bands, &a.out, |n| pb.set_position(n))?;
+    output::write_filtered(cfg, &bands, &a.out, |n| pb.set_position(n))?;
     pb.finish_and_clear();
     let size = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
     println!(

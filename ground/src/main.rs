@@ -7,6 +7,7 @@ mod compare;
 mod decode;
 mod demo;
 mod diagnose;
+mod effects;
 mod fw;
 mod import;
 mod replay;
