@@ -18,11 +18,9 @@ fn ground(args: &[&std::ffi::OsStr]) -> Output {
         .expect("running ground")
 }
 
-#[test]
-fn tradeoff_writes_both_figures_the_table_and_the_json() {
-    let d = dir("ok");
+/// `d/rec.csv`: `hours` of the seed experiment (seed 3), simulated by `ground simulate`.
+fn seed_record(d: &std::path::Path, hours: &str) -> PathBuf {
     let rec = d.join("rec.csv");
-    let out = d.join("out");
     let sim = ground(&[
         "simulate".as_ref(),
         "--out".as_ref(),
@@ -30,7 +28,7 @@ fn tradeoff_writes_both_figures_the_table_and_the_json() {
         "--preset".as_ref(),
         "seed".as_ref(),
         "--hours".as_ref(),
-        "0.1".as_ref(),
+        hours.as_ref(),
         "--seed".as_ref(),
         "3".as_ref(),
     ]);
@@ -39,6 +37,14 @@ fn tradeoff_writes_both_figures_the_table_and_the_json() {
         "{}",
         String::from_utf8_lossy(&sim.stderr)
     );
+    rec
+}
+
+#[test]
+fn tradeoff_writes_both_figures_the_table_and_the_json() {
+    let d = dir("ok");
+    let rec = seed_record(&d, "0.1");
+    let out = d.join("out");
     let run = ground(&[
         "tradeoff".as_ref(),
         rec.as_os_str(),
@@ -81,29 +87,23 @@ fn tradeoff_writes_both_figures_the_table_and_the_json() {
 #[test]
 fn a_missing_board_and_an_unsourced_figure_are_refused() {
     let d = dir("bad");
-    let rec = d.join("rec.csv");
-    let sim = ground(&[
-        "simulate".as_ref(),
-        "--out".as_ref(),
-        rec.as_os_str(),
-        "--preset".as_ref(),
-        "seed".as_ref(),
-        "--hours".as_ref(),
-        "0.02".as_ref(),
-    ]);
-    assert!(sim.status.success());
+    let rec = seed_record(&d, "0.02");
     let missing = d.join("no-such-board.toml");
-    let run = ground(&[
-        "tradeoff".as_ref(),
-        rec.as_os_str(),
-        "--board".as_ref(),
-        missing.as_os_str(),
-        "--out".as_ref(),
-        d.join("o1").as_os_str(),
-    ]);
-    let err = String::from_utf8_lossy(&run.stderr);
-    assert_eq!(run.status.code(), Some(1), "{err}");
-    assert!(err.contains("no-such-board.toml"), "{err}");
+    let refused = |flag: &str, file: &std::path::Path, out: &str, says: &str| {
+        let out = d.join(out);
+        let run = ground(&[
+            "tradeoff".as_ref(),
+            rec.as_os_str(),
+            flag.as_ref(),
+            file.as_os_str(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ]);
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(1), "{err}");
+        assert!(err.contains(says), "{err}");
+    };
+    refused("--board", &missing, "o1", "no-such-board.toml");
     let cat = d.join("imus.toml");
     let text = host_test::tradeoff::catalogue::DEFAULT_TOML.replacen(
         "source = \"Safran Sensonor, STIM300 data sheet TS1524 rev. 9, physical characteristics (weight)\"",
@@ -112,15 +112,5 @@ fn a_missing_board_and_an_unsourced_figure_are_refused() {
     );
     assert_ne!(text, host_test::tradeoff::catalogue::DEFAULT_TOML);
     std::fs::write(&cat, text).unwrap();
-    let run = ground(&[
-        "tradeoff".as_ref(),
-        rec.as_os_str(),
-        "--catalogue".as_ref(),
-        cat.as_os_str(),
-        "--out".as_ref(),
-        d.join("o2").as_os_str(),
-    ]);
-    let err = String::from_utf8_lossy(&run.stderr);
-    assert_eq!(run.status.code(), Some(1), "{err}");
-    assert!(err.contains("STIM300.mass_g: no source"), "{err}");
+    refused("--catalogue", &cat, "o2", "STIM300.mass_g: no source");
 }

@@ -58,30 +58,22 @@ pub fn succeeds(out: &Output) {
     assert!(!err.contains("panicked"), "panic:\n{err}");
 }
 
+/// `d/name` simulated with `samples` samples (the format from the name: `.bin` a frame log, `.csv` interchange).
+fn simulated(d: &Path, name: &str, samples: u32) -> PathBuf {
+    let p = d.join(name);
+    let n = samples.to_string();
+    succeeds(&ground(&[&"simulate", &"--out", &p, &"--samples", &n]));
+    p
+}
+
 /// A simulated frame log of `samples` frames.
 pub fn frame_log(d: &Path, samples: u32) -> PathBuf {
-    let p = d.join("frames.bin");
-    succeeds(&ground(&[
-        &"simulate",
-        &"--out",
-        &p,
-        &"--samples",
-        &samples.to_string(),
-    ]));
-    p
+    simulated(d, "frames.bin", samples)
 }
 
 /// A simulated interchange CSV of `samples` rows.
 pub fn csv(d: &Path, samples: u32) -> PathBuf {
-    let p = d.join("rec.csv");
-    succeeds(&ground(&[
-        &"simulate",
-        &"--out",
-        &p,
-        &"--samples",
-        &samples.to_string(),
-    ]));
-    p
+    simulated(d, "rec.csv", samples)
 }
 
 /// The telemetry stream of a replay.

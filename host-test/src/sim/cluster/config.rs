@@ -142,6 +142,22 @@ pub struct Thermal {
 }
 
 impl Thermal {
+    /// A board temperature `mean_c` ± `amplitude_c` with period `period_s` (phase 0, no drift, no hold) that moves
+    /// no sensor (no coefficients; the reference is `mean_c`).
+    pub fn sine(mean_c: f64, amplitude_c: f64, period_s: f64) -> Self {
+        Self {
+            mean_c,
+            amplitude_c,
+            period_s,
+            phase_rad: 0.0,
+            drift_c_per_h: 0.0,
+            coef: [0.0; 6],
+            coef_sd: [0.0; 6],
+            ref_c: None,
+            hold_after_s: None,
+        }
+    }
+
     /// Temperature at time `t_s`, °C.
     pub fn temp_at(&self, t_s: f64) -> f64 {
         self.mean_c

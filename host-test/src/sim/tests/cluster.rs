@@ -159,15 +159,10 @@ fn same_seed_same_output_whatever_the_chunking() {
         kind: DriftKind::RandomWalk { k: 1e-3 },
     });
     cfg.thermal = Some(Thermal {
-        mean_c: 25.0,
-        amplitude_c: 2.0,
-        period_s: 600.0,
-        phase_rad: 0.0,
         drift_c_per_h: 0.5,
         coef: [0.01; 6],
         coef_sd: [0.002; 6],
-        ref_c: None,
-        hold_after_s: None,
+        ..Thermal::sine(25.0, 2.0, 600.0)
     });
     cfg.spread = PartSpread {
         level_ln: 0.2,
@@ -227,15 +222,8 @@ fn raw_frames_round_trip_through_the_nominal_calibration() {
         seq_start: 65_000,
     };
     cfg.thermal = Some(Thermal {
-        mean_c: 21.0,
-        amplitude_c: 1.0,
-        period_s: 100.0,
         phase_rad: 0.3,
-        drift_c_per_h: 0.0,
-        coef: [0.0; 6],
-        coef_sd: [0.0; 6],
-        ref_c: None,
-        hold_after_s: None,
+        ..Thermal::sine(21.0, 1.0, 100.0)
     });
     // Round the physical output only where the ADC does: none here, so `phys` is the unquantised ideal output.
     for p in &mut cfg.sensor {
@@ -346,15 +334,10 @@ fn thermal_drift_and_outlier_effects_are_as_configured() {
     let mut cfg = SimConfig::new(3, 10.0, 1000, [NoiseParams::default(); CHANNELS]);
     cfg.accel_g = [0.0; 3];
     cfg.thermal = Some(Thermal {
-        mean_c: 20.0,
-        amplitude_c: 3.0,
-        period_s: 50.0,
-        phase_rad: 0.0,
         drift_c_per_h: 36.0,
         coef: [0.02, 0.0, 0.0, 1e-3, 0.0, 0.0],
         coef_sd: [0.005, 0.0, 0.0, 0.0, 0.0, 0.0],
-        ref_c: None,
-        hold_after_s: None,
+        ..Thermal::sine(20.0, 3.0, 50.0)
     });
     cfg.outliers.push(Outlier {
         group: 4,

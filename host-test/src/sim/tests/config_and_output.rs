@@ -57,19 +57,7 @@ fn bad_parameters_are_errors_not_panics() {
                 },
             })
         }),
-        Box::new(|c| {
-            c.thermal = Some(Thermal {
-                mean_c: 0.0,
-                amplitude_c: 1.0,
-                period_s: 0.0,
-                phase_rad: 0.0,
-                drift_c_per_h: 0.0,
-                coef: [0.0; 6],
-                coef_sd: [0.0; 6],
-                ref_c: None,
-                hold_after_s: None,
-            })
-        }),
+        Box::new(|c| c.thermal = Some(Thermal::sine(0.0, 1.0, 0.0))),
         Box::new(|c| c.accel_g[0] = f64::NAN),
     ];
     for (i, f) in bad.iter().enumerate() {
@@ -229,17 +217,7 @@ fn seed_with_temperature(samples: u64, thermal: bool) -> SimConfig {
     let mut cfg = seed_config(1).unwrap();
     cfg.samples = samples;
     if thermal {
-        cfg.thermal = Some(Thermal {
-            mean_c: 20.0,
-            amplitude_c: 1.0,
-            period_s: 60.0,
-            phase_rad: 0.0,
-            drift_c_per_h: 0.0,
-            coef: [0.0; 6],
-            coef_sd: [0.0; 6],
-            ref_c: None,
-            hold_after_s: None,
-        });
+        cfg.thermal = Some(Thermal::sine(20.0, 1.0, 60.0));
     }
     cfg
 }
@@ -284,15 +262,11 @@ fn simulator_output_is_pinned() {
         kind: DriftKind::RandomWalk { k: 1e-3 },
     });
     cfg.thermal = Some(Thermal {
-        mean_c: 25.0,
-        amplitude_c: 2.0,
-        period_s: 60.0,
         phase_rad: 0.3,
         drift_c_per_h: 0.5,
         coef: [0.01, 0.02, 0.0, 1e-3, 0.0, 2e-3],
         coef_sd: [0.002; 6],
-        ref_c: None,
-        hold_after_s: None,
+        ..Thermal::sine(25.0, 2.0, 60.0)
     });
     cfg.spread = PartSpread {
         level_ln: 0.2,

@@ -153,16 +153,20 @@ fn upload_verify_commit() {
     assert!(rx.take_reset() && !rx.take_reset(), "one reset per request");
 }
 
+/// A fresh upload's first request: open `header`, not restarting.
+fn open(header: [u8; image::OPEN_LEN]) -> UpdateRequest {
+    UpdateRequest::Open {
+        header,
+        restart: false,
+    }
+}
+
 #[test]
 fn bad_headers_are_refused_typed_and_write_nothing() {
     let k = key();
     let pk = k.verifying_key().to_bytes();
     let c = ctx(&pk);
     let (mut dfu, mut boot, mut rx) = (Dfu::erased(3), Boot::default(), Receiver::default());
-    let open = |h: [u8; image::OPEN_LEN]| UpdateRequest::Open {
-        header: h,
-        restart: false,
-    };
     let refused = |e| UpdateReply::Refused(UpdateError::Image(e));
     // Another key, another board, an older version, too large, not a header.
     let other = SigningKey::from_bytes(&[8; 32]);
@@ -221,10 +225,6 @@ fn requests_out_of_order_are_refused_typed() {
     let pk = k.verifying_key().to_bytes();
     let c = ctx(&pk);
     let (mut dfu, mut boot, mut rx) = (Dfu::erased(3), Boot::default(), Receiver::default());
-    let open = |h: [u8; image::OPEN_LEN]| UpdateRequest::Open {
-        header: h,
-        restart: false,
-    };
     // Not idle: no erase. Out of order erase. Truncated upload: no verify, no commit.
     let (header, payload) = image(5000, 4, BOARD, &k);
     assert!(matches!(
