@@ -16,6 +16,7 @@
 //! on the same record, and places it among commercial IMUs (`crate::tradeoff`, `tradeoff/`); [`files`] writes the plot and the files; [`report`] renders the Markdown report.
 
 mod diagnosis;
+pub use diagnosis::{REAL_EXCERPT, RealTwin};
 mod files;
 mod replay;
 mod report;
@@ -73,6 +74,8 @@ pub struct DemoResult {
     pub largest_shared_flicker: Option<(String, f64)>,
     /// The sim-to-real loop on the same record: model, twin with and without effects, compared with the record.
     pub twin: crate::twin::LoopSummary,
+    /// The same loop on a real cluster's record (`real/`: the MIMU4444 excerpt [`diagnosis::REAL_EXCERPT`]).
+    pub real_twin: diagnosis::RealTwin,
     /// The seed paper's Figures 9–10 on the same record (`tradeoff/`): the terminal summary of
     /// [`crate::tradeoff::run`] (the figures, the boards' power and mass, the battery check).
     pub tradeoff: String,
@@ -119,6 +122,9 @@ pub enum DemoError {
     /// The trade-off figures failed.
     #[error(transparent)]
     Tradeoff(#[from] crate::tradeoff::TradeoffError),
+    /// The built-in MIMU4444 excerpt did not parse.
+    #[error(transparent)]
+    Mimu(#[from] crate::formats::mimu::MimuError),
 }
 
 impl DemoError {
@@ -158,6 +164,7 @@ pub fn run(
     files::write_plot(out, &decoded, &tables)?;
     let diagnosed =
         diagnosis::of_record(&streamed.record, &out.join("diagnose"), &out.join("twin"))?;
+    let real_twin = diagnosis::of_real_excerpt(&out.join("real"))?;
     let tradeoff = crate::tradeoff::run(
         &streamed.record,
         "the seed experiment (simulated)",
@@ -171,6 +178,7 @@ pub fn run(
         diagnosis: diagnosed.lines,
         largest_shared_flicker: diagnosed.largest_shared_flicker,
         twin: diagnosed.twin,
+        real_twin,
         table1: tables.table1,
         table2: tables.table2,
         fits,
