@@ -253,6 +253,17 @@ pub fn markdown(t: &Tradeoff) -> String {
             est(&si.random_walk)
         );
     }
+    boards_section(&mut s, t);
+    catalogue_section(&mut s, t);
+    let _ = writeln!(
+        s,
+        "\nSources of every figure: tradeoff.json (`catalogue`) and data/imus.toml."
+    );
+    s
+}
+
+/// The boards' budgets, the MCU's power and the battery check.
+fn boards_section(s: &mut String, t: &Tradeoff) {
     let _ = writeln!(s, "\n## Boards\n");
     for b in &t.budgets {
         let _ = writeln!(s, "### {}\n", b.name);
@@ -306,6 +317,10 @@ pub fn markdown(t: &Tradeoff) -> String {
             sig3(100.0 * c.budget_w / c.power_min_w)
         );
     }
+}
+
+/// The catalogue's figures.
+fn catalogue_section(s: &mut String, t: &Tradeoff) {
     let _ = writeln!(s, "## The catalogue\n");
     let _ = writeln!(
         s,
@@ -330,11 +345,6 @@ pub fn markdown(t: &Tradeoff) -> String {
             figs.len()
         );
     }
-    let _ = writeln!(
-        s,
-        "\nSources of every figure: tradeoff.json (`catalogue`) and data/imus.toml."
-    );
-    s
 }
 
 /// A few lines for the terminal: the plotted figures, each board's power and mass, the battery check.
