@@ -16,6 +16,7 @@
 //! on the same record, and places it among commercial IMUs (`crate::tradeoff`, `tradeoff/`); [`files`] writes the plot and the files; [`report`] renders the Markdown report.
 
 mod diagnosis;
+use crate::file_error::FileError;
 pub use diagnosis::{REAL_EXCERPT, RealTwin};
 mod files;
 mod replay;
@@ -23,7 +24,7 @@ mod report;
 mod stats;
 
 use crate::seedfit::AxisFit;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 pub use report::report;
 
@@ -88,16 +89,8 @@ pub struct DemoResult {
 #[derive(Debug, thiserror::Error)]
 pub enum DemoError {
     /// An output could not be written (or its folder created).
-    #[error("{what} {}", path.display())]
-    Io {
-        /// `creating` or `writing`.
-        what: &'static str,
-        /// The file or folder.
-        path: PathBuf,
-        /// The cause.
-        #[source]
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Io(#[from] crate::file_error::FileError),
     /// The seed fit or the simulator failed.
     #[error(transparent)]
     Sim(#[from] crate::sim::SimError),
@@ -130,11 +123,7 @@ pub enum DemoError {
 impl DemoError {
     /// Writes `contents` to `path`, naming the file on failure.
     fn write(path: &Path, contents: impl AsRef<[u8]>) -> Result<(), DemoError> {
-        std::fs::write(path, contents).map_err(|source| DemoError::Io {
-            what: "writing",
-            path: path.to_path_buf(),
-            source,
-        })
+        std::fs::write(path, contents).map_err(|e| FileError::writing(path)(e).into())
     }
 }
 
@@ -148,11 +137,7 @@ pub fn run(
     progress: impl FnMut(u64, u64),
 ) -> Result<DemoResult, DemoError> {
     let t0 = std::time::Instant::now();
-    std::fs::create_dir_all(out).map_err(|source| DemoError::Io {
-        what: "creating",
-        path: out.to_path_buf(),
-        source,
-    })?;
+    std::fs::create_dir_all(out).map_err(FileError::creating(out))?;
     let (fits, cfg) = replay::seed_config(opts)?;
     let streamed = replay::through_the_core(cfg, progress)?;
     let telemetry = &streamed.sent.telemetry;

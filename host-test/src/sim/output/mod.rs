@@ -9,9 +9,10 @@ mod memory;
 pub use bandwidth::{Bandwidth, BandwidthFilter};
 pub use memory::{RecordingSink, recording, recording_filtered};
 
+use crate::file_error::FileError;
 use crate::sim::{Chunk, FrameOpts, SimConfig, SimError, Simulator, csv_header};
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Why a simulation's output was refused or could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -23,16 +24,8 @@ pub enum OutputError {
     #[error(transparent)]
     Sim(#[from] SimError),
     /// The output file could not be created or written.
-    #[error("{what} {}", path.display())]
-    Io {
-        /// `creating` or `writing`.
-        what: &'static str,
-        /// The output file.
-        path: PathBuf,
-        /// The cause.
-        #[source]
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Io(#[from] crate::file_error::FileError),
 }
 
 /// The result of this module's functions.
@@ -81,11 +74,7 @@ pub fn write_filtered(
     let mut sim = Simulator::new(cfg)?;
     let mut out = std::io::BufWriter::with_capacity(
         1 << 20,
-        std::fs::File::create(path).map_err(|source| OutputError::Io {
-            what: "creating",
-            path: path.to_path_buf(),
-            source,
-        })?,
+        std::fs::File::create(path).map_err(FileError::creating(path))?,
     );
     let mut chunk = Chunk::default();
     let mut text = String::new();
@@ -110,11 +99,7 @@ pub fn write_filtered(
         }
         out.flush()
     };
-    run().map_err(|source| OutputError::Io {
-        what: "writing",
-        path: path.to_path_buf(),
-        source,
-    })?;
+    run().map_err(FileError::writing(path))?;
     Ok(sim)
 }
 
