@@ -149,6 +149,69 @@ fn hex_prefix(b: &[u8]) -> String {
     b.iter().take(8).map(|x| format!("{x:02x}")).collect()
 }
 
+/// What an upload event shows: a line above the progress bar, its message or its position.
+fn show(pb: &indicatif::ProgressBar, e: &UploadEvent) {
+    match e {
+        UploadEvent::Status(s) => say(
+            pb,
+            format!(
+                "satellite: running version {}, DFU {:?} (version {}), boot state {:?}, last update {:?}",
+                s.running_version, s.dfu, s.dfu_version, s.boot, s.last
+            ),
+        ),
+        UploadEvent::Opened {
+            sectors,
+            erased,
+            next_offset,
+        } => {
+            pb.set_position(u64::from(*next_offset));
+            pb.reset_eta();
+            if *next_offset > 0 || *erased > 0 {
+                say(
+                    pb,
+                    format!(
+                        "resuming: {erased} of {sectors} sectors erased, {next_offset} bytes already there"
+                    ),
+                );
+            }
+        }
+        UploadEvent::Erased { sector, sectors } => {
+            pb.set_message(format!("erased sector {} of {sectors}", sector + 1))
+        }
+        UploadEvent::Progress { acked, .. } => {
+            pb.set_message("");
+            pb.set_position(u64::from(*acked));
+        }
+        UploadEvent::Rewind { to, cause } => {
+            if *cause == RewindCause::Timeout {
+                pb.set_message(format!("no reply: again from {to}"));
+            }
+        }
+        UploadEvent::Timeout { request } => {
+            pb.set_message(format!("no reply to {request}: sent again"))
+        }
+        UploadEvent::Reopen { restart, cause } => say(
+            pb,
+            format!(
+                "{} after {}",
+                if *restart {
+                    "starting over"
+                } else {
+                    "re-opening"
+                },
+                update::uploader::describe(*cause)
+            ),
+        ),
+        UploadEvent::Verified => say(pb, "verified on board (SHA-512 and signature)"),
+        UploadEvent::Committed => say(pb, "committed: the satellite swaps it in at its next reset"),
+        UploadEvent::Reset(true) => say(pb, "the satellite resets now"),
+        UploadEvent::Reset(false) => say(
+            pb,
+            "no reply to Reset (not sent again: a second reset would revert the new image); check its telemetry",
+        ),
+    }
+}
+
 pub fn upload(a: UploadArgs) -> Result<()> {
     let bytes =
         std::fs::read(&a.image).with_context(|| format!("reading {}", a.image.display()))?;
@@ -201,68 +264,7 @@ pub fn upload(a: UploadArgs) -> Result<()> {
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let started = Instant::now();
-    let result = update::upload(&mut link, &mut framer, &mut uploader, |e| match e {
-        UploadEvent::Status(s) => say(
-            &pb,
-            format!(
-                "satellite: running version {}, DFU {:?} (version {}), boot state {:?}, last update {:?}",
-                s.running_version, s.dfu, s.dfu_version, s.boot, s.last
-            ),
-        ),
-        UploadEvent::Opened {
-            sectors,
-            erased,
-            next_offset,
-        } => {
-            pb.set_position(u64::from(*next_offset));
-            pb.reset_eta();
-            if *next_offset > 0 || *erased > 0 {
-                say(
-                    &pb,
-                    format!(
-                        "resuming: {erased} of {sectors} sectors erased, {next_offset} bytes already there"
-                    ),
-                );
-            }
-        }
-        UploadEvent::Erased { sector, sectors } => {
-            pb.set_message(format!("erased sector {} of {sectors}", sector + 1))
-        }
-        UploadEvent::Progress { acked, .. } => {
-            pb.set_message("");
-            pb.set_position(u64::from(*acked));
-        }
-        UploadEvent::Rewind { to, cause } => {
-            if *cause == RewindCause::Timeout {
-                pb.set_message(format!("no reply: again from {to}"));
-            }
-        }
-        UploadEvent::Timeout { request } => {
-            pb.set_message(format!("no reply to {request}: sent again"))
-        }
-        UploadEvent::Reopen { restart, cause } => say(
-            &pb,
-            format!(
-                "{} after {}",
-                if *restart {
-                    "starting over"
-                } else {
-                    "re-opening"
-                },
-                update::uploader::describe(*cause)
-            ),
-        ),
-        UploadEvent::Verified => say(&pb, "verified on board (SHA-512 and signature)"),
-        UploadEvent::Committed => say(
-            &pb,
-            "committed: the satellite swaps it in at its next reset",
-        ),
-        UploadEvent::Reset(true) => say(&pb, "the satellite resets now"),
-        UploadEvent::Reset(false) => say(
-            &pb,
-            "no reply to Reset (not sent again: a second reset would revert the new image); check its telemetry",
-        ),
-    });
+    let result = update::upload(&mut link, &mut framer, &mut uploader, |e| show(&pb, e));
     pb.finish_and_clear();
     let s = result?;
     let elapsed = started.elapsed().as_secs_f64();
