@@ -123,7 +123,8 @@ pub enum DemoError {
 impl DemoError {
     /// Writes `contents` to `path`, naming the file on failure.
     fn write(path: &Path, contents: impl AsRef<[u8]>) -> Result<(), DemoError> {
-        std::fs::write(path, contents).map_err(|e| FileError::writing(path)(e).into())
+        std::fs::write(path, contents).map_err(FileError::writing(path))?;
+        Ok(())
     }
 }
 
