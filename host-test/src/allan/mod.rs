@@ -54,7 +54,7 @@ pub use deviation::{DevKind, DevPoint, Phase, adev, deviation, mdev, oadev};
 pub use edf::{edf_for_kind, edf_greenhall};
 pub use noise::{
     ACF_MIN_POINTS, AcfFlavor, AcfResult, B1Result, NoiseId, NoiseIdMethod, acf_noise_id,
-    b1_noise_id, noise_id,
+    b1_noise_id, detrend_linear, noise_id,
 };
 pub use taus::{TauSpec, averaging_factors};
 

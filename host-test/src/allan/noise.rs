@@ -210,7 +210,7 @@ fn block_averages(y: &[f64], m: usize, out: &mut Vec<f64>) {
 }
 
 /// Removes the least-squares straight line `a + b·t`, `t = 0, 1, …`.
-fn detrend_linear(z: &mut [f64]) {
+pub fn detrend_linear(z: &mut [f64]) {
     let n = z.len();
     if n < 2 {
         return;

@@ -8,6 +8,7 @@ use super::candidates::{AxisWork, Candidate};
 use super::model::Cross;
 use super::singles::weighted_mean;
 use super::types::Groups;
+use crate::allan::detrend_linear;
 use crate::stats::median;
 use std::collections::BTreeMap;
 
@@ -83,21 +84,11 @@ pub(super) fn block_len(n: usize) -> usize {
     n.div_ceil(MAX_BLOCKS).max(1)
 }
 
-/// `z` minus its least-squares line.
+/// `z` less its least-squares line (a copy; [`detrend_linear`] in place).
 pub(super) fn detrend(z: &[f64]) -> Vec<f64> {
-    let n = z.len() as f64;
-    let tm = (n - 1.0) / 2.0;
-    let zm = z.iter().sum::<f64>() / n.max(1.0);
-    let (mut stt, mut stz) = (0.0, 0.0);
-    for (t, v) in z.iter().enumerate() {
-        stt += (t as f64 - tm).powi(2);
-        stz += (t as f64 - tm) * (v - zm);
-    }
-    let slope = if stt > 0.0 { stz / stt } else { 0.0 };
-    z.iter()
-        .enumerate()
-        .map(|(t, v)| v - zm - slope * (t as f64 - tm))
-        .collect()
+    let mut x = z.to_vec();
+    detrend_linear(&mut x);
+    x
 }
 
 /// Hann-windowed power of `x` at `f` cycles per block (direct sum).
