@@ -251,28 +251,31 @@ fn non_finite_cells_are_errors_with_line_and_column() {
 #[test]
 fn time_must_increase() {
     let d = dir("time");
-    // A huge time in the middle: the next row goes back.
-    let p = csv_with_cell(&d, "huge_t.csv", 200, 0, "1e300");
-    fails(
-        &ground(&[&"allan", &p, &"--out", &d.join("a.csv")]),
-        &[
+    // A huge time in the middle (the next row goes back), and a repeated time: (file, row, value, command, what the
+    // message must say besides "t must increase").
+    let cases = [
+        (
             "huge_t.csv",
-            "line 202, column 1 (t)",
-            "is not after 1e300 s on line 201",
-            "t must increase",
-        ],
-    );
-    // A repeated time.
-    let p = csv_with_cell(&d, "repeat.csv", 10, 0, "0");
-    fails(
-        &ground(&[&"import", &p, &"--out", &d.join("o.csv")]),
-        &[
+            200,
+            "1e300",
+            "allan",
+            ["line 202, column 1 (t)", "is not after 1e300 s on line 201"],
+        ),
+        (
             "repeat.csv",
-            "line 11, column 1 (t)",
-            "on line 10",
-            "t must increase",
-        ],
-    );
+            10,
+            "0",
+            "import",
+            ["line 11, column 1 (t)", "on line 10"],
+        ),
+    ];
+    for (file, row, value, command, [at, previous]) in cases {
+        let p = csv_with_cell(&d, file, row, 0, value);
+        fails(
+            &ground(&[&command, &p, &"--out", &d.join("o.csv")]),
+            &[file, at, previous, "t must increase"],
+        );
+    }
     // Blank lines count in the line numbers.
     let p = d.join("blank.csv");
     std::fs::write(&p, "\nt,g00x\n0,1\n\n\n0.1,2\n0.1,3\n").unwrap();
@@ -346,26 +349,22 @@ fn csv_structure_errors_say_what_was_expected() {
         &["two.csv", "too few for any averaging time"],
     );
     let rec = csv(&d, 400);
-    fails(
-        &ground(&[
+    let windows = [
+        (
+            "1000:2000",
+            &["--window 1000:2000 keeps 0 samples", "spans 0"],
+        ),
+        ("nan:5", &["--window", "numbers of seconds"]),
+    ];
+    for (window, needles) in windows {
+        let args: [&dyn AsRef<std::ffi::OsStr>; 6] = [
             &"allan",
             &rec,
             &"--out",
             &d.join("a.csv"),
             &"--window",
-            &"1000:2000",
-        ]),
-        &["--window 1000:2000 keeps 0 samples", "spans 0"],
-    );
-    fails(
-        &ground(&[
-            &"allan",
-            &rec,
-            &"--out",
-            &d.join("a.csv"),
-            &"--window",
-            &"nan:5",
-        ]),
-        &["--window", "numbers of seconds"],
-    );
+            &window,
+        ];
+        fails(&ground(&args), needles);
+    }
 }
