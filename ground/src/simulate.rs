@@ -3,6 +3,7 @@
 use crate::common::{bar, millihz};
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
+use host_test::figures::sig3;
 use std::path::PathBuf;
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -135,7 +136,7 @@ fn run_model(a: &Args, path: &std::path::Path) -> Result<()> {
     }
     let size = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
     println!(
-        "{}: the model of {} {}, {samples} samples at {rate} Hz ({:.2} h), {} groups, {:.1} MB, {:.1} s",
+        "{}: the model of {} {}, {samples} samples at {} Hz ({:.2} h), {} groups, {:.1} MB, {:.1} s",
         a.out.display(),
         model.record.source,
         if a.without_effects {
@@ -143,6 +144,7 @@ fn run_model(a: &Args, path: &std::path::Path) -> Result<()> {
         } else {
             "with its effects"
         },
+        sig3(rate),
         samples as f64 / rate / 3600.0,
         model.record.groups.len(),
         size as f64 / 1e6,
@@ -222,7 +224,7 @@ pub fn run(a: Args) -> Result<()> {
     println!(
         "{}: {samples} samples at {} Hz ({:.2} h), {:.1} MB, {:.1} s",
         a.out.display(),
-        rate,
+        sig3(rate),
         samples as f64 / rate / 3600.0,
         size as f64 / 1e6,
         t0.elapsed().as_secs_f64()

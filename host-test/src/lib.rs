@@ -14,6 +14,7 @@ pub mod allan;
 pub mod calibrate;
 pub mod demo;
 pub mod diagnose;
+pub mod figures;
 pub mod file_error;
 pub mod formats;
 pub mod load;

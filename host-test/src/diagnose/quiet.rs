@@ -256,7 +256,7 @@ mod tests {
             "{text}"
         );
         let d = &r.disturbances[0];
-        let sig3 = super::super::report::sig3;
+        let sig3 = crate::figures::sig3;
         let line = format!(
             "\n  accel y: {} … {} s after the first sample, variance ×{}",
             sig3(d.start_s),

@@ -1,6 +1,7 @@
 //! Human-readable report and plots of a diagnosis.
 
 use super::{AxisReport, Effect, Groups, Report, quiet};
+use crate::figures::sig3;
 use crate::plot::{self, Curve, Panel, Style};
 use std::fmt::Write as _;
 use std::path::Path;
@@ -54,25 +55,6 @@ pub fn text(r: &Report, source: &str) -> String {
     disturbances(&mut s, r);
     axes(&mut s, r);
     s
-}
-
-/// `x` to three significant figures: plain from 0.01 to 99 999, else in scientific notation.
-pub fn sig3(x: f64) -> String {
-    if !x.is_finite() {
-        return "-".into();
-    }
-    if x == 0.0 {
-        return "0".into();
-    }
-    let e = x.abs().log10().floor() as i32;
-    if !(-2..5).contains(&e) {
-        return format!("{x:.2e}");
-    }
-    if e >= 2 {
-        let unit = 10f64.powi(e - 2);
-        return format!("{:.0}", (x / unit).round() * unit);
-    }
-    format!("{:.*}", (2 - e) as usize, x)
 }
 
 /// A τ range in seconds, or a single τ when both ends are the same octave.
@@ -558,24 +540,9 @@ pub fn plot(r: &Report, path: &Path, source: &str) -> Result<(), plot::PlotError
 mod tests {
     use super::*;
 
-    /// Three significant figures, written out by hand.
+    /// A τ range in three significant figures.
     #[test]
-    fn three_significant_figures() {
-        for (x, want) in [
-            (2.048, "2.05"),
-            (0.000_123_45, "1.23e-4"),
-            (0.012_345, "0.0123"),
-            (12.345, "12.3"),
-            (123.45, "123"),
-            (3276.8, "3280"),
-            (65_536.0, "65500"),
-            (123_456.0, "1.23e5"),
-            (-0.6, "-0.600"),
-            (0.0, "0"),
-        ] {
-            assert_eq!(sig3(x), want, "{x}");
-        }
-        assert_eq!(sig3(f64::NAN), "-");
+    fn tau_ranges() {
         // One octave is one τ, not a range.
         assert_eq!(tau_range([2.048, 2.048]), "2.05 s");
         assert_eq!(tau_range([0.2, 3276.8]), "0.200–3280 s");

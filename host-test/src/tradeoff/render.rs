@@ -3,33 +3,11 @@
 
 use super::place::{Estimate, Figures};
 use super::{Tradeoff, TradeoffError};
+use crate::figures::sig3;
 use crate::plot::PlotError;
 use plotters::prelude::*;
 use std::fmt::Write as _;
 use std::path::Path;
-
-/// `x` to 3 significant figures (no exponent between 1e-4 and 1e6).
-pub fn sig3(x: f64) -> String {
-    if !x.is_finite() {
-        return format!("{x}");
-    }
-    if x == 0.0 {
-        return "0".into();
-    }
-    let mag = x.abs().log10().floor();
-    if !(-4.0..6.0).contains(&mag) {
-        return format!("{x:.2e}");
-    }
-    let decimals = (2.0 - mag).max(0.0) as usize;
-    let v: f64 = format!("{x:.decimals$}").parse().unwrap_or(x);
-    if decimals == 0 {
-        // Round to 3 significant figures left of the point too (12 345 → 12 300).
-        let step = 10f64.powf(mag - 2.0);
-        format!("{:.0}", (v / step).round() * step)
-    } else {
-        format!("{v:.decimals$}")
-    }
-}
 
 /// `value [lo, hi]`, 3 significant figures each.
 fn est(e: &Estimate) -> String {
@@ -411,19 +389,4 @@ pub fn write_all(t: &Tradeoff, out: &Path) -> Result<(), TradeoffError> {
         source,
     })?;
     write(json, text)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::sig3;
-
-    #[test]
-    fn three_significant_figures() {
-        assert_eq!(sig3(0.0886), "0.0886");
-        assert_eq!(sig3(24641.5), "24600");
-        assert_eq!(sig3(604.8), "605");
-        assert_eq!(sig3(2.1428), "2.14");
-        assert_eq!(sig3(0.5), "0.500");
-        assert_eq!(sig3(1.5e-5), "1.50e-5");
-    }
 }
