@@ -517,37 +517,78 @@ fn report_axis(
     });
 }
 
-/// The `bias_step` effects, one per sensor and axis: time and size of the step, its score and threshold.
+/// A record's warm-up: steps on at least this many sensors of one axis, all in the record's first
+/// [`WARM_UP_FRACTION`] and not all at one instant, are named together as `warm_up` rather than as bias steps of
+/// their own.
+const WARM_UP_MIN_SENSORS: usize = 2;
+/// The part of a record a warm-up's steps fall in.
+const WARM_UP_FRACTION: f64 = 0.25;
+
+/// The `bias_step` effects, one per sensor and axis: time and size of the step, its score and threshold; where the
+/// steps of several sensors of an axis fall in the record's first quarter at different times, one `warm_up` effect for them instead
+/// (`params.<axis>.end_s`, the last of them, and `steps`, each as a `bias_step`'s parameters with its `group`).
 fn step_effects(works: &[AxisWork], found: &[Vec<steps::Step>], tau0: f64) -> Vec<Effect> {
     let mut out = Vec::new();
     for (w, st) in works.iter().zip(found) {
-        for s in st {
-            let ax = AXIS_NAMES.get(w.axis).copied().unwrap_or('?').to_string();
+        let ax = AXIS_NAMES.get(w.axis).copied().unwrap_or('?').to_string();
+        let n = w.series.first().map_or(0, |s| s.len());
+        let early = |s: &steps::Step| (s.at as f64) < WARM_UP_FRACTION * n as f64;
+        // Sensors settle each at its own pace: steps all at one instant (within a window) are an event every
+        // sensor saw at once (a shock, a move), not a warm-up.
+        let first: Vec<&steps::Step> = st.iter().filter(|s| early(s)).collect();
+        let span = first.iter().map(|s| s.at).max().unwrap_or(0)
+            - first.iter().map(|s| s.at).min().unwrap_or(0);
+        let widest = first.iter().map(|s| s.window).max().unwrap_or(0);
+        let warm = first.len() >= WARM_UP_MIN_SENSORS && span > widest;
+        let params = |s: &steps::Step| {
+            serde_json::json!({
+                "at_s": s.at as f64 * tau0,
+                "at_fraction": s.at as f64 / n as f64,
+                "size": s.size,
+                "z": s.z,
+                "threshold_z": s.threshold,
+                "window_s": s.window as f64 * tau0,
+            })
+        };
+        let effect = |kind: &str, groups: Vec<usize>, s: &steps::Step, p: serde_json::Value| {
             let window = s.window as f64 * tau0;
-            let n = w.series[s.sensor].len();
-            let mut params = BTreeMap::new();
-            params.insert(
-                ax.clone(),
-                serde_json::json!({
-                    "at_s": s.at as f64 * tau0,
-                    "at_fraction": s.at as f64 / n as f64,
-                    "size": s.size,
-                    "z": s.z,
-                    "threshold_z": s.threshold,
-                    "window_s": window,
-                }),
-            );
-            out.push(Effect {
-                kind: "bias_step".into(),
+            Effect {
+                kind: kind.into(),
                 sensor: w.kind.name().into(),
-                axes: ax,
-                groups: Groups::List(vec![w.groups[s.sensor]]),
+                axes: ax.clone(),
+                groups: Groups::List(groups),
                 region: "step".into(),
                 tau_s: [window, window],
                 tau_at_max_s: window,
                 share: step_share(s, n),
-                params,
+                params: BTreeMap::from([(ax.clone(), p)]),
+            }
+        };
+        let (warm_up, own): (Vec<&steps::Step>, Vec<&steps::Step>) =
+            st.iter().partition(|s| warm && early(s));
+        for s in own {
+            out.push(effect("bias_step", vec![w.groups[s.sensor]], s, params(s)));
+        }
+        // The warm-up is shown by its largest step (share and window); every step is in its parameters.
+        if let Some(top) = warm_up
+            .iter()
+            .max_by(|a, b| step_share(a, n).total_cmp(&step_share(b, n)))
+        {
+            let end = warm_up.iter().map(|s| s.at).max().unwrap_or(0) as f64 * tau0;
+            let p = serde_json::json!({
+                "end_s": end,
+                "steps": warm_up
+                    .iter()
+                    .map(|s| {
+                        let mut p = params(s);
+                        p["group"] = w.groups[s.sensor].into();
+                        p
+                    })
+                    .collect::<Vec<_>>(),
             });
+            let mut groups: Vec<usize> = warm_up.iter().map(|s| w.groups[s.sensor]).collect();
+            groups.sort_unstable();
+            out.push(effect("warm_up", groups, top, p));
         }
     }
     out

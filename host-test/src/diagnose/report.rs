@@ -94,7 +94,8 @@ fn wrap(text: &str, width: usize) -> String {
 /// An effect as words: kind, sensor, axes, and groups where they are not all.
 fn effect_name(e: &Effect) -> String {
     let groups = match e.kind.as_str() {
-        "outlier_sensor" | "block_common_mode" | "sensor_drift" | "periodic" | "bias_step" => {
+        "outlier_sensor" | "block_common_mode" | "sensor_drift" | "periodic" | "bias_step"
+        | "warm_up" => {
             format!(" (group {})", e.groups)
         }
         _ => String::new(),
@@ -289,6 +290,12 @@ fn share_words(e: &Effect) -> String {
     if e.kind == "bias_step" {
         return format!("{} % of its sensor's at {at} s", sig3(100.0 * e.share));
     }
+    if e.kind == "warm_up" {
+        return format!(
+            "largest step {} % of its sensor's at {at} s",
+            sig3(100.0 * e.share)
+        );
+    }
     let what = if e.kind == "unexplained" {
         "missed"
     } else {
@@ -309,6 +316,7 @@ fn main_parameters(e: &Effect) -> String {
         "thermal" => &[("shared_beta", "/°C")],
         "periodic" => &[("period_s", "s"), ("amplitude", "")],
         "bias_step" => &[("at_s", "s"), ("size", "")],
+        "warm_up" => &[("end_s", "s")],
         "sensor_drift" => &[("random_walk", "/√s")],
         "unexplained" => &[("largest_z", "σ")],
         _ => &[],

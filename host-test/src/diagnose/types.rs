@@ -105,7 +105,8 @@ impl std::fmt::Display for Groups {
 #[derive(Clone, Debug, Serialize)]
 pub struct Effect {
     /// `common_mode`, `block_common_mode`, `common_mode_drift`, `thermal`, `outlier_sensor`, `unequal_noise`,
-    /// `sensor_drift` (one sensor's own slow drift), `bias_step` (one sensor's bias jump), `periodic` (a sinusoidal
+    /// `sensor_drift` (one sensor's own slow drift), `bias_step` (one sensor's bias jump), `warm_up` (steps of
+    /// several sensors of an axis in the record's first quarter), `periodic` (a sinusoidal
     /// interference, shared or one sensor's own: `params.<axis>.period_s`, `amplitude`).
     pub kind: String,
     /// `gyro` or `accel`.

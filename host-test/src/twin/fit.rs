@@ -53,8 +53,12 @@ pub fn fit(rec: &Recording, report: &Report, source: &str) -> Result<ClusterMode
     let mut an = Analyzer::new();
     let mut axes = Vec::new();
     for af in &report.fitted {
-        let steps = axis_steps(report, af);
-        axes.push(fit_axis(rec, af, &steps, temp, t_ref, tau0, &mut an)?);
+        let (steps, warm_up_end_s) = axis_steps(report, af);
+        let det = Given {
+            steps: &steps,
+            warm_up_end_s,
+        };
+        axes.push(fit_axis(rec, af, &det, temp, t_ref, tau0, &mut an)?);
     }
     let effects = report
         .effects
@@ -85,30 +89,51 @@ pub fn fit(rec: &Recording, report: &Report, source: &str) -> Result<ClusterMode
     Ok(model)
 }
 
-/// The bias steps the diagnosis found on one axis: (index into the axis's sensors, step).
-fn axis_steps(report: &Report, af: &AxisFit) -> Vec<(usize, BiasStep)> {
+/// The bias steps the diagnosis found on one axis, its own and its warm-up's: (index into the axis's sensors,
+/// step); and the warm-up's end (its last step), s, if it named one.
+fn axis_steps(report: &Report, af: &AxisFit) -> (Vec<(usize, BiasStep)>, Option<f64>) {
     let ax = crate::recording::AXIS_NAMES[af.axis].to_string();
-    report
-        .effects
-        .iter()
-        .filter(|e| e.kind == "bias_step" && e.sensor == af.kind.name() && e.axes == ax)
-        .filter_map(|e| {
-            let g = *e.groups.flat().first()?;
-            let i = af.groups.iter().position(|&x| x == g)?;
-            let p = e.params.get(&ax)?;
-            let step = BiasStep {
-                at_s: p.get("at_s")?.as_f64()?,
-                size: p.get("size")?.as_f64()?,
-            };
-            Some((i, step))
-        })
-        .collect()
+    let ax = ax.as_str();
+    let on_axis = |kind: &'static str| {
+        report
+            .effects
+            .iter()
+            .filter(move |e| e.kind == kind && e.sensor == af.kind.name() && e.axes == ax)
+    };
+    let step = |group: Option<usize>, p: &serde_json::Value| {
+        let i = af.groups.iter().position(|&x| Some(x) == group)?;
+        let step = BiasStep {
+            at_s: p.get("at_s")?.as_f64()?,
+            size: p.get("size")?.as_f64()?,
+        };
+        Some((i, step))
+    };
+    let mut steps: Vec<(usize, BiasStep)> = on_axis("bias_step")
+        .filter_map(|e| step(e.groups.flat().first().copied(), e.params.get(ax)?))
+        .collect();
+    let mut end = None;
+    for e in on_axis("warm_up") {
+        let Some(p) = e.params.get(ax) else { continue };
+        end = p.get("end_s").and_then(serde_json::Value::as_f64);
+        let listed = p.get("steps").and_then(serde_json::Value::as_array);
+        steps.extend(listed.into_iter().flatten().filter_map(|s| {
+            let group = s.get("group")?.as_u64()?;
+            step(usize::try_from(group).ok(), s)
+        }));
+    }
+    (steps, end)
+}
+
+/// What the diagnosis measured of an axis's deterministic parts: its steps (own and warm-up), and the warm-up's end.
+struct Given<'a> {
+    steps: &'a [(usize, BiasStep)],
+    warm_up_end_s: Option<f64>,
 }
 
 fn fit_axis(
     rec: &Recording,
     af: &AxisFit,
-    steps: &[(usize, BiasStep)],
+    given: &Given,
     temp: Option<&[f64]>,
     t_ref: Option<f64>,
     tau0: f64,
@@ -131,7 +156,14 @@ fn fit_axis(
     let ns = series.len();
     let beta = thermal_coefficients(af, ns);
     let mut cleaned = without_thermal(&series, &beta, temp, t_ref);
-    let det = remove_deterministic(&mut cleaned, af, steps, tau0);
+    let det = remove_deterministic(&mut cleaned, af, given.steps, tau0);
+    // A warm-up is kept out of the noise terms: they are fitted on what follows it.
+    if let Some(end) = given.warm_up_end_s {
+        let k = ((end / tau0).ceil().max(0.0) as usize).min(rec.len() / 2);
+        cleaned
+            .iter_mut()
+            .for_each(|s| drop(s.drain(..k.min(s.len()))));
+    }
     let band = af.bandwidth.as_ref();
     let spec = Spec { tau0_s: tau0, band };
     let (whole, halves) = whole_and_halves(cleaned.first().map_or(0, Vec::len), |r| {
