@@ -281,6 +281,7 @@ mod tests {
                         .collect(),
                     shared: Vec::new(),
                     bandwidth_hz: None,
+                    coverage: None,
                 })
                 .collect(),
         }

@@ -166,15 +166,21 @@ fn fit_axis(
     }
     let band = af.bandwidth.as_ref();
     let spec = Spec { tau0_s: tau0, band };
+    let mut whole_points = Vec::new();
     let (whole, halves) = whole_and_halves(cleaned.first().map_or(0, Vec::len), |r| {
         let points: Vec<Vec<AnalysisPoint>> = cleaned
             .iter()
             .map(|s| octave(an, &s[r.clone()], tau0))
             .collect();
-        Obs::of(&typical_points(&points))
+        let obs = Obs::of(&typical_points(&points));
+        if r.start == 0 && r.end == cleaned.first().map_or(0, Vec::len) {
+            whole_points = points;
+        }
+        obs
     });
     let typical = terms_fit::fit(&whole, as_slices(&halves), &spec);
     let own = own_terms(af, &typical, ns);
+    let coverage = super::coverage::coverage(&whole_points, &own, tau0, band);
     let mut shared = shared_processes(af, &cleaned, &own, &spec, an);
     shared.extend(det.shared_sines.into_iter().map(|p| (p, Vec::new())));
     let sensors = (0..ns)
@@ -201,6 +207,7 @@ fn fit_axis(
         sensors,
         shared: shared.into_iter().map(|(p, _)| p).collect(),
         bandwidth_hz: band.map(|l| l.cutoff_hz),
+        coverage: Some(coverage),
     })
 }
 

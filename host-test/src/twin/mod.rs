@@ -9,6 +9,7 @@
 //! datasheet.
 
 pub mod compare;
+pub mod coverage;
 pub mod fit;
 pub mod play;
 pub mod terms_fit;
@@ -322,6 +323,10 @@ pub struct AxisModel {
     /// Absent: no filter.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bandwidth_hz: Option<f64>,
+    /// The fitted terms against the record's 68 % intervals ([`coverage`]), when the model was fitted here (not
+    /// written to the file).
+    #[serde(skip)]
+    pub coverage: Option<coverage::Coverage>,
 }
 
 impl AxisModel {

@@ -56,6 +56,7 @@ fn model() -> ClusterModel {
             sinusoids: Vec::new(),
         }],
         bandwidth_hz: Some(1.0),
+        coverage: None,
     };
     let az = AxisModel {
         axis: "az".into(),
@@ -75,6 +76,7 @@ fn model() -> ClusterModel {
             .collect(),
         shared: vec![],
         bandwidth_hz: None,
+        coverage: None,
     };
     ClusterModel {
         format: FORMAT.into(),
@@ -419,4 +421,59 @@ fn sinusoids_and_steps_are_kept_and_played() {
             );
         }
     }
+}
+
+/// Item 1's check on a record the model family describes exactly: 8 groups, 20 Hz, 40 000 samples; the gyros
+/// white (0.4) plus a first-order Gauss–Markov bump of their own (σ 0.3, T 1 s), the accelerometers white (0.004).
+/// The fitted terms must stay inside the record's 68 % interval at nearly every octave τ. Not met (2026-11-29):
+/// the accelerometers are inside at 39 of 45 τ, the gyros at 3 of 45, 7 % off everywhere (35× the half-width of
+/// a pooled EDF of 8 sensors): the fit took the white term for quantisation plus a Gauss–Markov term at 2τ₀
+/// (white 0, Q 0.0102, T 0.1 s and 2.26 s), a shape that is close to white only near τ₀.
+#[test]
+#[ignore = "not met: the terms fit replaces white noise by quantisation + a 2τ₀ Gauss–Markov term"]
+fn fitted_terms_follow_a_record_of_their_own_family() {
+    use crate::recording::{Column, Recording, SensorKind};
+    use crate::testrng::TestRng;
+    let (n, dt) = (40_000, 0.05);
+    let mut rec = Recording {
+        t_s: (0..n).map(|i| i as f64 * dt).collect(),
+        ..Default::default()
+    };
+    let phi = (-dt / 1.0f64).exp();
+    for g in 0..8 {
+        let mut r = TestRng::new(900 + g as u64);
+        for axis in 0..3 {
+            let mut x = 0.0;
+            let gyro = (0..n)
+                .map(|_| {
+                    x = phi * x + 0.3 * (1.0 - phi * phi).sqrt() * r.normal();
+                    0.4 * r.normal() + x
+                })
+                .collect();
+            rec.columns.push(Column {
+                group: g,
+                kind: SensorKind::Gyro,
+                axis,
+                data: gyro,
+            });
+            let accel = (0..n).map(|_| 0.004 * r.normal()).collect();
+            rec.columns.push(Column {
+                group: g,
+                kind: SensorKind::Accel,
+                axis,
+                data: accel,
+            });
+        }
+    }
+    let report = crate::diagnose::diagnose(&rec, &crate::diagnose::Options::default()).unwrap();
+    let model = fit(&rec, &report, "sim").unwrap();
+    let (mut outside, mut taus) = (0, 0);
+    for a in &model.axes {
+        let c = a.coverage.as_ref().unwrap();
+        eprintln!("{}: {} {:?}", a.axis, c.summary(), a.typical);
+        outside += c.outside_s.len();
+        taus += c.taus_s.len();
+    }
+    assert!(taus >= 60, "{taus}");
+    assert!(outside * 10 <= taus, "{outside} of {taus} outside");
 }
