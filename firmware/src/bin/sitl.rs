@@ -171,7 +171,9 @@ async fn feed(board: &Board, frames: &[u8], fast: bool, base_rate_millihz: u64) 
         let mut probe = frames;
         let n = FrameDecoder::new()
             .decode(&mut probe)
-            .map_or(15, |d| d.frame.decimation);
+            .map_or(shared::wire::clock::FLIGHT_DECIMATION, |d| {
+                d.frame.decimation
+            });
         node::fpga_play(board, frames, n, base_rate_millihz).await;
     }
     log::info!("sitl: frame log ended; the FPGA link is silent now");
