@@ -178,7 +178,9 @@ fn fit_axis(
         }
         obs
     });
-    let typical = terms_fit::fit(&whole, as_slices(&halves), &spec);
+    let (typical, band_kept) = terms_fit::fit_band_tested(&whole, as_slices(&halves), &spec);
+    let band = band.filter(|_| band_kept);
+    let spec = Spec { tau0_s: tau0, band };
     let own = own_terms(af, &typical, ns);
     let coverage = super::coverage::coverage(&whole_points, &own, tau0, band);
     let mut shared = shared_processes(af, &cleaned, &own, &spec, an);

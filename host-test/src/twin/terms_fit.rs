@@ -69,10 +69,37 @@ pub struct Spec<'a> {
 
 /// The terms of `whole`, the Gauss–Markov count chosen on `halves` (module docs).
 pub fn fit(whole: &[Obs], halves: Option<[&[Obs]; 2]>, spec: &Spec) -> NoiseTerms {
-    let k = halves.map_or(0, |[a, b]| chosen_count(a, b, spec));
+    let k = halves.map_or(0, |[a, b]| chosen_count(a, b, spec).0);
     fit_count(whole, k, spec)
         .map(|(t, _)| t)
         .unwrap_or_default()
+}
+
+/// [`fit`] with the sensors' bandwidth put to the same held-out test: the fit without it replaces the fit with it
+/// when its two-fold held-out cost is lower by [`HELD_OUT_GAIN_MIN`] (a Gauss–Markov bump can pass for a
+/// single-pole roll-off in the diagnosis's look at short τ, and then no term of the family follows the record).
+/// Returns the terms and whether the bandwidth is kept; without a bandwidth or halves, [`fit`] and `true`.
+pub fn fit_band_tested(
+    whole: &[Obs],
+    halves: Option<[&[Obs]; 2]>,
+    spec: &Spec,
+) -> (NoiseTerms, bool) {
+    let (Some(_), Some([a, b])) = (spec.band, halves) else {
+        return (fit(whole, halves, spec), true);
+    };
+    let plain = Spec {
+        band: None,
+        ..*spec
+    };
+    let (k_band, cost_band) = chosen_count(a, b, spec);
+    let (k_plain, cost_plain) = chosen_count(a, b, &plain);
+    let (k, s, kept) = if cost_plain < cost_band - HELD_OUT_GAIN_MIN {
+        (k_plain, &plain, false)
+    } else {
+        (k_band, spec, true)
+    };
+    let terms = fit_count(whole, k, s).map(|(t, _)| t).unwrap_or_default();
+    (terms, kept)
 }
 
 /// What one more Gauss–Markov term (two parameters) must take off the held-out cost (a χ², the points weighted by
@@ -81,7 +108,8 @@ const HELD_OUT_GAIN_MIN: f64 = 6.0;
 
 /// The Gauss–Markov count with the lowest two-fold held-out cost, a count above another kept only if it lowers the
 /// cost by [`HELD_OUT_GAIN_MIN`].
-fn chosen_count(a: &[Obs], b: &[Obs], spec: &Spec) -> usize {
+/// Returns the count and its held-out cost.
+fn chosen_count(a: &[Obs], b: &[Obs], spec: &Spec) -> (usize, f64) {
     let mut best = (f64::INFINITY, 0);
     for k in 0..=GM_MAX {
         let cost = [(a, b), (b, a)]
@@ -95,7 +123,7 @@ fn chosen_count(a: &[Obs], b: &[Obs], spec: &Spec) -> usize {
             best = (cost, k);
         }
     }
-    best.1
+    (best.1, best.0)
 }
 
 /// The misfit of `terms` on held-out `obs`: `Σ (ν/2)·ln²(model/observed)` (each point's log Allan variance has
