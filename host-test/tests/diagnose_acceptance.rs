@@ -182,6 +182,59 @@ fn four_blocks_of_four_gyro_groups() {
     shrinks(&r);
 }
 
+/// The blocks `groups` sharing a mode (white share `rho_white`, flicker share `rho_flicker`) on `axes`.
+fn shared_blocks(
+    cfg: &mut SimConfig,
+    groups: &[Vec<usize>],
+    axes: &[Axis],
+    (rho_white, rho_flicker): (f64, f64),
+) -> Groups {
+    for (b, g) in groups.iter().enumerate() {
+        cfg.common.push(CommonMode::block(
+            &format!("b{b}"),
+            g,
+            axes,
+            rho_white,
+            rho_flicker,
+        ));
+    }
+    Groups::Blocks(groups.to_vec())
+}
+
+/// Eight pairs of gyro groups sharing flicker (issue 40: "sensors sharing flicker in pairs called one
+/// `common_mode` over all"): named `block_common_mode` with the eight pairs, and no `common_mode` over all.
+#[test]
+fn eight_pairs_of_gyro_groups_sharing_flicker() {
+    let mut cfg = config(SEED + 14);
+    // The pair shares all its flicker: in the flicker region AVAR × (1 + ρ_f) = 2; nothing shared in the white region.
+    let pairs: Vec<Vec<usize>> = (0..8).map(|b| vec![2 * b, 2 * b + 1]).collect();
+    let want = shared_blocks(&mut cfg, &pairs, &Axis::ALL[..3], (0.0, 1.0));
+    let r = run(cfg, true);
+    let e = only(&r, "block_common_mode");
+    assert_eq!(
+        (e.sensor.as_str(), e.axes.as_str(), &e.groups),
+        ("gyro", "xyz", &want)
+    );
+    shrinks(&r);
+}
+
+/// Three blocks of unequal sizes (8, 4 and 2 accelerometer groups; groups 14 and 15 in none): named
+/// `block_common_mode` with those blocks.
+#[test]
+fn three_accelerometer_blocks_of_unequal_sizes() {
+    let mut cfg = config(SEED + 15);
+    // Within the blocks AVAR × (1 + 7ρ) = 3.1, (1 + 3ρ) = 1.9, (1 + ρ) = 1.3 in both regions.
+    let groups = vec![(0..8).collect(), (8..12).collect(), vec![12, 13]];
+    let want = shared_blocks(&mut cfg, &groups, &Axis::ALL[3..], (0.3, 0.3));
+    let r = run(cfg, true);
+    let e = only(&r, "block_common_mode");
+    assert_eq!(
+        (e.sensor.as_str(), e.axes.as_str(), &e.groups),
+        ("accel", "xyz", &want)
+    );
+    shrinks(&r);
+}
+
 #[test]
 fn two_blocks_of_eight_accelerometer_groups() {
     let mut cfg = config(SEED + 4);

@@ -6,7 +6,7 @@ use super::model::{Cross, Model, Terms};
 use super::prediction::{Gaps, PointGap, evaluate, excess, scan_statistic, significant};
 use super::selection::{AxisState, acts, axis_label, select, sibling, threshold};
 use super::sensors::confirmed;
-use super::singles::{Half, octave, terms_of};
+use super::singles::{Half, Shape, octave, terms_of};
 use super::summary::{gains, merge_effects, regions, tau_rows};
 use super::types::{
     AxisCurves, AxisFit, AxisReport, DiagnoseError, Effect, Groups, HeldOut, MIN_SAMPLES, Measured,
@@ -18,6 +18,7 @@ use crate::allan::noisefit::NoiseFit;
 use crate::allan::{AnalysisPoint, Analyzer};
 use crate::formats::csv::{AXIS_NAMES, Recording, SensorKind};
 use crate::stats::{median, rms};
+use crate::twin::terms_fit;
 use std::collections::BTreeMap;
 
 /// Log-spread of sensor levels (deviation ratios) above which the others are not "homogeneous" and the effect is
@@ -162,6 +163,19 @@ fn weights(rule: WeightRule, singles: &[NoiseFit]) -> Vec<f64> {
     }
 }
 
+/// The per-τ median of the sensors' deviations (the typical sensor's curve).
+fn median_curve(pts: &[Vec<AnalysisPoint>]) -> Vec<AnalysisPoint> {
+    (0..pts.iter().map(Vec::len).min().unwrap_or(0))
+        .map(|k| {
+            let devs: Vec<f64> = pts.iter().map(|p| p[k].dev).collect();
+            AnalysisPoint {
+                dev: median(&devs),
+                ..pts[0][k]
+            }
+        })
+        .collect()
+}
+
 /// The typical sensor of the first half (per-τ median of the sensors' deviations) and its baseline noise model:
 /// the four terms with its single-pole bandwidth when the curve shows one (`noisefit::fit_band_limited`); and the
 /// sensors' RMS misfit to their own four-term and band-limited fits.
@@ -170,15 +184,7 @@ fn typical_sensor(
     singles: &[NoiseFit],
     tau0: f64,
 ) -> (NoiseFit, Option<noisefit::LowPass>, Terms, [f64; 2]) {
-    let typical_pts: Vec<AnalysisPoint> = (0..pts_first.iter().map(Vec::len).min().unwrap_or(0))
-        .map(|k| {
-            let devs: Vec<f64> = pts_first.iter().map(|p| p[k].dev).collect();
-            AnalysisPoint {
-                dev: median(&devs),
-                ..pts_first[0][k]
-            }
-        })
-        .collect();
+    let typical_pts = median_curve(pts_first);
     let (typical, bandwidth) = noisefit::fit_band_limited(&typical_pts, tau0);
     let typ_terms = terms_of(&typical);
     let misfit_of = |fits: &[(NoiseFit, Option<noisefit::LowPass>)]| {
@@ -198,6 +204,50 @@ fn typical_sensor(
         .collect();
     let model_misfit = [misfit_of(&four), misfit_of(&banded)];
     (typical, bandwidth, typ_terms, model_misfit)
+}
+
+/// The typical sensor's noise shape on the first half `first`: its five terms `typ`, and the Gauss–Markov terms of
+/// the twin's composite fit ([`terms_fit`]) of its curve `pts_first`, their number chosen on the first half's two
+/// quarters (so the held-out half stays out of it); with none chosen, `typ` alone.
+fn typical_shape(
+    an: &mut Analyzer,
+    first: &[&[f64]],
+    pts_first: &[Vec<AnalysisPoint>],
+    typ: Terms,
+    bandwidth: Option<&noisefit::LowPass>,
+    tau0: f64,
+) -> Shape {
+    let q = first.iter().map(|s| s.len()).min().unwrap_or(0) / 2;
+    let quarter = |an: &mut Analyzer, r: std::ops::Range<usize>| {
+        let pts: Vec<Vec<AnalysisPoint>> = first
+            .iter()
+            .filter_map(|s| s.get(r.clone()))
+            .map(|s| octave(an, s, tau0))
+            .collect();
+        terms_fit::Obs::of(&median_curve(&pts))
+    };
+    let (a, b) = (quarter(an, 0..q), quarter(an, q..2 * q));
+    let spec = terms_fit::Spec {
+        tau0_s: tau0,
+        band: bandwidth,
+    };
+    let fitted = terms_fit::fit(
+        &terms_fit::Obs::of(&median_curve(pts_first)),
+        Some([&a, &b]),
+        &spec,
+    );
+    if fitted.gauss_markov.is_empty() {
+        return Shape {
+            five: typ,
+            gm: Vec::new(),
+            tau0_s: tau0,
+        };
+    }
+    Shape {
+        five: Terms(fitted.avar_coefficients()),
+        gm: fitted.gauss_markov,
+        tau0_s: tau0,
+    }
 }
 
 /// Adds what is named on one sensor's own evidence to `chosen`: a sensor's own drift, confirmed on the held-out
@@ -247,6 +297,7 @@ fn analyse_axis(
     let singles: Vec<NoiseFit> = pts_first.iter().map(|p| noisefit::fit(p)).collect();
     let (typical, bandwidth, typ_terms, model_misfit) = typical_sensor(&pts_first, &singles, tau0);
     let wts = weights(opts.weights, &singles);
+    let shape = typical_shape(an, &first, &pts_first, typ_terms, bandwidth.as_ref(), tau0);
 
     let mb = opts.min_blocks;
     let hf = Half::measure(
@@ -255,7 +306,7 @@ fn analyse_axis(
         &wts,
         tau0,
         mb,
-        &typ_terms,
+        &shape,
         &pts_first,
         temp.map(|t| &t[..half]),
     );
@@ -265,7 +316,7 @@ fn analyse_axis(
         &wts,
         tau0,
         mb,
-        &typ_terms,
+        &shape,
         &pts_held,
         temp.map(|t| &t[half..]),
     );
@@ -281,7 +332,7 @@ fn analyse_axis(
         opts,
         &own,
     );
-    let hw = Half::measure(an, &w.series, &wts, tau0, mb, &typ_terms, &pts_whole, temp);
+    let hw = Half::measure(an, &w.series, &wts, tau0, mb, &shape, &pts_whole, temp);
     let thr = threshold(thresholds, hw.len(), opts.p_false);
     let mut chosen = select(&cands, &hw, &hh, &wts, opts, thr, None);
     // Effects that together remove less than half of the held-out excess are not named: the gap is `unexplained`.

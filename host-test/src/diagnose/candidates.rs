@@ -4,7 +4,7 @@ use super::analyse::UNEQUAL_LN_SPREAD;
 use super::model::{Cross, Model, Share, Terms};
 use super::periodic;
 use super::sensors::{departures, drift_candidate};
-use super::singles::{Half, octave, region_name, weighted_mean};
+use super::singles::{Half, octave, weighted_mean};
 use super::types::{Groups, Options};
 use crate::allan::Analyzer;
 use crate::allan::acov::AllanCov;
@@ -331,24 +331,48 @@ fn correlation_blocks(first: &[&[f64]], tau0: f64, typ: &Terms, merge_z: f64) ->
         .filter(|&l| ac.terms[l] >= 30)
         .map(|l| (l, ac.terms[l] as f64))
         .collect();
+    // A level's evidence for a shared slow process: the correlation it adds there is its share of the typical
+    // variance times the process's own share, measured to `√(1.5/T_l)`; weighting each level by `T_l × share`
+    // (signal over variance) lets the many differences of the τ where the slow terms are only part of the variance
+    // count, not only the few of the τ where they dominate (pairs sharing flicker were missed that way).
     let slow: Vec<(usize, f64)> = all
         .iter()
-        .filter(|&&(l, _)| matches!(region_name(typ, ac.tau_s[l]), "flicker" | "random_walk"))
-        .map(|&(l, _)| (l, 1.0))
+        .map(|&(l, t)| (l, t * slow_share(typ, ac.tau_s[l])))
+        .filter(|&(_, w)| w > 0.0)
         .collect();
-    let found = |levels: &[(usize, f64)]| -> Vec<Vec<usize>> {
+    let found = |levels: &[(usize, f64)], merge_z: f64| -> Vec<Vec<usize>> {
         blocks(&ac, levels, merge_z)
             .into_iter()
             .filter(|c| c.len() >= 2)
             .collect()
     };
-    let fast = found(&all);
+    let fast = found(&all, merge_z);
     if fast.is_empty() && !slow.is_empty() {
-        found(&slow)
+        found(&slow, SLOW_MERGE * merge_z)
     } else {
         fast
     }
 }
+
+/// The share of the typical variance at `tau_s` that its slow terms (flicker, random walk, ramp) make, below
+/// [`SLOW_SHARE_MIN`] counted as 0.
+fn slow_share(typ: &Terms, tau_s: f64) -> f64 {
+    let all = typ.avar(tau_s);
+    let share = if all > 0.0 {
+        typ.only(&[2, 3, 4]).avar(tau_s) / all
+    } else {
+        0.0
+    };
+    if share >= SLOW_SHARE_MIN { share } else { 0.0 }
+}
+
+/// The slow band's merging threshold relative to `merge_z` (8 → 5: with 16 sensors' 120 pairs, 120·P(Z > 5) =
+/// 3·10⁻⁵). Its correlations are measured on few differences, so the white band's margin would leave a pair sharing
+/// flicker unmerged; a block found here is still only a candidate, named only if the held-out half wants it.
+const SLOW_MERGE: f64 = 0.625;
+
+/// Least share of the typical variance the slow terms must make at a τ for it to count in the slow band.
+const SLOW_SHARE_MIN: f64 = 0.1;
 
 /// `block_common_mode`: one shared process (five terms) per block, if every block's fit succeeds.
 fn block_candidate(

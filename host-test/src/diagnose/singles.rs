@@ -8,6 +8,7 @@ use crate::allan::{
     AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, TauSpec, edf_for_kind,
 };
 use crate::stats::median;
+use crate::twin::{GaussMarkov, gm_basis};
 
 pub(super) fn octave(an: &mut Analyzer, y: &[f64], tau0: f64) -> Vec<AnalysisPoint> {
     an.analyze(
@@ -51,6 +52,51 @@ pub(super) fn dominant_alpha(t: &Terms, tau_s: f64) -> i32 {
     [2, 0, -1, -2, -2][k]
 }
 
+/// The typical sensor's noise shape, for the noise type that sets each τ's EDF: its five terms and its first-order
+/// Gauss–Markov terms (AR(1) sampled every `tau0_s`; none unless the held-out criterion of
+/// [`crate::twin::terms_fit`] keeps them).
+#[derive(Clone, Debug, Default)]
+pub(super) struct Shape {
+    /// The five terms.
+    pub(super) five: Terms,
+    /// The Gauss–Markov terms.
+    pub(super) gm: Vec<GaussMarkov>,
+    /// Sample interval, s.
+    pub(super) tau0_s: f64,
+}
+
+impl Shape {
+    /// Noise type (α) at `tau_s` of the term that dominates there: a five-term's own ([`dominant_alpha`]), or, where
+    /// a Gauss–Markov term is larger, the power law its Allan variance follows locally (slope μ over the octave
+    /// about τ, `α = −μ − 1` rounded into [−2, 0]: random walk below its correlation time, flicker at its peak,
+    /// white beyond).
+    pub(super) fn alpha(&self, tau_s: f64) -> i32 {
+        let b = Terms::basis(tau_s);
+        let five = (0..5).map(|k| b[k] * self.five.0[k]).fold(0.0, f64::max);
+        let gm = self
+            .gm
+            .iter()
+            .map(|g| (g, g.avar(tau_s, self.tau0_s)))
+            .max_by(|x, y| x.1.total_cmp(&y.1));
+        match gm {
+            Some((g, v)) if v > five => {
+                let at = |t: f64| gm_basis(g.tau_s, t, self.tau0_s);
+                let (lo, hi) = (
+                    at(tau_s / std::f64::consts::SQRT_2),
+                    at(tau_s * std::f64::consts::SQRT_2),
+                );
+                if lo > 0.0 && hi > 0.0 {
+                    let mu = (hi / lo).log2();
+                    (-mu - 1.0).round().clamp(-2.0, 0.0) as i32
+                } else {
+                    0
+                }
+            }
+            _ => dominant_alpha(&self.five, tau_s),
+        }
+    }
+}
+
 /// Region name of a τ under the typical model.
 pub(super) fn region_name(t: &Terms, tau_s: f64) -> &'static str {
     match dominant_alpha(t, tau_s) {
@@ -91,7 +137,7 @@ pub(super) struct Half {
 }
 
 impl Half {
-    /// Measures one half: `series` the sensors, `w` the weights, `typ` the typical model (for noise types).
+    /// Measures one half: `series` the sensors, `w` the weights, `typ` the typical sensor's shape (for noise types).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn measure(
         an: &mut Analyzer,
@@ -99,7 +145,7 @@ impl Half {
         w: &[f64],
         tau0: f64,
         min_blocks: usize,
-        typ: &Terms,
+        typ: &Shape,
         singles_pts: &[Vec<AnalysisPoint>],
         temp: Option<&[f64]>,
     ) -> Half {
@@ -126,7 +172,7 @@ impl Half {
             // The noise type of the typical sensor's model (first half) sets the EDF: it is the type of the
             // cluster under the null hypothesis the z-scores test (the cluster's own curve at four blocks would
             // identify a type by chance).
-            let a_typ = dominant_alpha(typ, p.tau_s);
+            let a_typ = typ.alpha(p.tau_s);
             let alpha = a_typ;
             let nu = edf(alpha, m, n);
             let d: Vec<f64> = singles_pts.iter().map(|s| s[k].dev.powi(2)).collect();
@@ -153,5 +199,37 @@ impl Half {
 
     pub(super) fn len(&self) -> usize {
         self.tau_s.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A Gauss–Markov term that dominates takes the noise type of its Allan variance's local slope, against the
+    /// continuous process's limits (`σ²τ/(3T)·…` rises as τ¹ well below T: random walk; falls as `2σ²T/τ` well
+    /// above: white; flat near its peak at τ ≈ 1.89 T: flicker); elsewhere the five terms decide.
+    #[test]
+    fn a_dominant_gauss_markov_term_sets_the_noise_type_by_its_slope() {
+        let shape = Shape {
+            five: Terms([0.0, 1e-6, 0.0, 0.0, 0.0]),
+            gm: vec![GaussMarkov {
+                sigma: 1.0,
+                tau_s: 1.0,
+            }],
+            tau0_s: 0.01,
+        };
+        assert_eq!(shape.alpha(0.05), -2);
+        assert_eq!(shape.alpha(1.89), -1);
+        assert_eq!(shape.alpha(100.0), 0);
+        // A weak one (Allan variance ≈ 4·10⁻⁹ at 1.89 s against the white term's 5·10⁻⁷): the white term's type.
+        let weak = Shape {
+            gm: vec![GaussMarkov {
+                sigma: 1e-4,
+                tau_s: 1.0,
+            }],
+            ..shape
+        };
+        assert_eq!(weak.alpha(1.89), 0);
     }
 }
