@@ -55,6 +55,17 @@ fn shrinks(r: &Report) {
     );
 }
 
+/// The record of `cfg` names one `block_common_mode` on `sensor` `axes` with the blocks `want`, and shrinks.
+fn blocks_named(cfg: SimConfig, (sensor, axes): (&str, &str), want: &Groups) {
+    let r = run(cfg, true);
+    let e = only(&r, "block_common_mode");
+    assert_eq!(
+        (e.sensor.as_str(), e.axes.as_str(), &e.groups),
+        (sensor, axes, want)
+    );
+    shrinks(&r);
+}
+
 fn all16() -> Groups {
     Groups::List((0..16).collect())
 }
@@ -173,13 +184,7 @@ fn four_blocks_of_four_gyro_groups() {
     let mut cfg = config(SEED + 3);
     // AVAR × (1 + 3ρ) = 1.9.
     let want = blocks(&mut cfg, 4, &Axis::ALL[..3], 0.3);
-    let r = run(cfg, true);
-    let e = only(&r, "block_common_mode");
-    assert_eq!(
-        (e.sensor.as_str(), e.axes.as_str(), &e.groups),
-        ("gyro", "xyz", &want)
-    );
-    shrinks(&r);
+    blocks_named(cfg, ("gyro", "xyz"), &want);
 }
 
 /// The blocks `groups` sharing a mode (white share `rho_white`, flicker share `rho_flicker`) on `axes`.
@@ -209,13 +214,7 @@ fn eight_pairs_of_gyro_groups_sharing_flicker() {
     // The pair shares all its flicker: in the flicker region AVAR × (1 + ρ_f) = 2; nothing shared in the white region.
     let pairs: Vec<Vec<usize>> = (0..8).map(|b| vec![2 * b, 2 * b + 1]).collect();
     let want = shared_blocks(&mut cfg, &pairs, &Axis::ALL[..3], (0.0, 1.0));
-    let r = run(cfg, true);
-    let e = only(&r, "block_common_mode");
-    assert_eq!(
-        (e.sensor.as_str(), e.axes.as_str(), &e.groups),
-        ("gyro", "xyz", &want)
-    );
-    shrinks(&r);
+    blocks_named(cfg, ("gyro", "xyz"), &want);
 }
 
 /// Three blocks of unequal sizes (8, 4 and 2 accelerometer groups; groups 14 and 15 in none): named
@@ -226,13 +225,7 @@ fn three_accelerometer_blocks_of_unequal_sizes() {
     // Within the blocks AVAR × (1 + 7ρ) = 3.1, (1 + 3ρ) = 1.9, (1 + ρ) = 1.3 in both regions.
     let groups = vec![(0..8).collect(), (8..12).collect(), vec![12, 13]];
     let want = shared_blocks(&mut cfg, &groups, &Axis::ALL[3..], (0.3, 0.3));
-    let r = run(cfg, true);
-    let e = only(&r, "block_common_mode");
-    assert_eq!(
-        (e.sensor.as_str(), e.axes.as_str(), &e.groups),
-        ("accel", "xyz", &want)
-    );
-    shrinks(&r);
+    blocks_named(cfg, ("accel", "xyz"), &want);
 }
 
 #[test]
@@ -240,13 +233,7 @@ fn two_blocks_of_eight_accelerometer_groups() {
     let mut cfg = config(SEED + 4);
     // AVAR × (1 + 7ρ) = 2.05.
     let want = blocks(&mut cfg, 8, &Axis::ALL[3..], 0.15);
-    let r = run(cfg, true);
-    let e = only(&r, "block_common_mode");
-    assert_eq!(
-        (e.sensor.as_str(), e.axes.as_str(), &e.groups),
-        ("accel", "xyz", &want)
-    );
-    shrinks(&r);
+    blocks_named(cfg, ("accel", "xyz"), &want);
 }
 
 #[test]

@@ -450,19 +450,15 @@ fn fitted_terms_follow_a_record_of_their_own_family() {
                     0.4 * r.normal() + x
                 })
                 .collect();
-            rec.columns.push(Column {
-                group: g,
-                kind: SensorKind::Gyro,
-                axis,
-                data: gyro,
-            });
             let accel = (0..n).map(|_| 0.004 * r.normal()).collect();
-            rec.columns.push(Column {
-                group: g,
-                kind: SensorKind::Accel,
-                axis,
-                data: accel,
-            });
+            for (kind, data) in [(SensorKind::Gyro, gyro), (SensorKind::Accel, accel)] {
+                rec.columns.push(Column {
+                    group: g,
+                    kind,
+                    axis,
+                    data,
+                });
+            }
         }
     }
     let report = crate::diagnose::diagnose(&rec, &crate::diagnose::Options::default()).unwrap();
