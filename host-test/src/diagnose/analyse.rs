@@ -176,16 +176,17 @@ fn median_curve(pts: &[Vec<AnalysisPoint>]) -> Vec<AnalysisPoint> {
         .collect()
 }
 
-/// The typical sensor of the first half (per-τ median of the sensors' deviations) and its baseline noise model:
+/// The typical sensor of the first half (`typical_pts`: the per-τ median of the sensors' deviations `pts_first`) and
+/// its baseline noise model:
 /// the four terms with its single-pole bandwidth when the curve shows one (`noisefit::fit_band_limited`); and the
 /// sensors' RMS misfit to their own four-term and band-limited fits.
 fn typical_sensor(
     pts_first: &[Vec<AnalysisPoint>],
+    typical_pts: &[AnalysisPoint],
     singles: &[NoiseFit],
     tau0: f64,
 ) -> (NoiseFit, Option<noisefit::LowPass>, Terms, [f64; 2]) {
-    let typical_pts = median_curve(pts_first);
-    let (typical, bandwidth) = noisefit::fit_band_limited(&typical_pts, tau0);
+    let (typical, bandwidth) = noisefit::fit_band_limited(typical_pts, tau0);
     let typ_terms = terms_of(&typical);
     let misfit_of = |fits: &[(NoiseFit, Option<noisefit::LowPass>)]| {
         rms(pts_first.iter().zip(fits).flat_map(|(p, (f, lp))| {
@@ -207,12 +208,12 @@ fn typical_sensor(
 }
 
 /// The typical sensor's noise shape on the first half `first`: its five terms `typ`, and the Gauss–Markov terms of
-/// the twin's composite fit ([`terms_fit`]) of its curve `pts_first`, their number chosen on the first half's two
+/// the twin's composite fit ([`terms_fit`]) of its curve `typical_pts`, their number chosen on the first half's two
 /// quarters (so the held-out half stays out of it); with none chosen, `typ` alone.
 fn typical_shape(
     an: &mut Analyzer,
     first: &[&[f64]],
-    pts_first: &[Vec<AnalysisPoint>],
+    typical_pts: &[AnalysisPoint],
     typ: Terms,
     bandwidth: Option<&noisefit::LowPass>,
     tau0: f64,
@@ -231,11 +232,7 @@ fn typical_shape(
         tau0_s: tau0,
         band: bandwidth,
     };
-    let fitted = terms_fit::fit(
-        &terms_fit::Obs::of(&median_curve(pts_first)),
-        Some([&a, &b]),
-        &spec,
-    );
+    let fitted = terms_fit::fit(&terms_fit::Obs::of(typical_pts), Some([&a, &b]), &spec);
     if fitted.gauss_markov.is_empty() {
         return Shape {
             five: typ,
@@ -295,9 +292,18 @@ fn analyse_axis(
     let pts_held: Vec<Vec<AnalysisPoint>> = second.iter().map(|s| octave(an, s, tau0)).collect();
     let pts_whole: Vec<Vec<AnalysisPoint>> = w.series.iter().map(|s| octave(an, s, tau0)).collect();
     let singles: Vec<NoiseFit> = pts_first.iter().map(|p| noisefit::fit(p)).collect();
-    let (typical, bandwidth, typ_terms, model_misfit) = typical_sensor(&pts_first, &singles, tau0);
+    let typical_pts = median_curve(&pts_first);
+    let (typical, bandwidth, typ_terms, model_misfit) =
+        typical_sensor(&pts_first, &typical_pts, &singles, tau0);
     let wts = weights(opts.weights, &singles);
-    let shape = typical_shape(an, &first, &pts_first, typ_terms, bandwidth.as_ref(), tau0);
+    let shape = typical_shape(
+        an,
+        &first,
+        &typical_pts,
+        typ_terms,
+        bandwidth.as_ref(),
+        tau0,
+    );
 
     let mb = opts.min_blocks;
     let hf = Half::measure(

@@ -51,16 +51,16 @@ fn detrended_variance(y: &[f64]) -> f64 {
     ss / (y.len() as f64 - 2.0).max(1.0)
 }
 
-/// The degrees of freedom of a window's variance about its line when the cluster mean `y` is correlated from sample
-/// to sample (a Gauss–Markov bump, a band limit): measured on the windows themselves — `ln(χ²_ν/ν)` has variance
+/// The degrees of freedom of a window's variance about its line (`var`: each window's) when the cluster mean is
+/// correlated from sample to sample (a Gauss–Markov bump, a band limit): measured on the windows themselves — `ln(χ²_ν/ν)` has variance
 /// `ψ₁(ν/2)`, so ν is where the trigamma meets the squared robust spread (`1.4826·MAD`, so that a few disturbed
 /// windows do not set it) of the windows' log variances; never above `nu`, the count of independent samples.
 /// (Bartlett's `ν/(1 + 2Σρ_k²)` from the windows' own autocorrelations, tried first, gave 12.7 where the spread
 /// says 8.9 for an AR(1) at φ = 0.8: the line's removal hides the slow part of ρ.)
-fn effective_dof(y: &[f64], nu: f64) -> f64 {
-    let lv: Vec<f64> = y
-        .chunks_exact(WINDOW)
-        .map(detrended_variance)
+fn effective_dof(var: &[f64], nu: f64) -> f64 {
+    let lv: Vec<f64> = var
+        .iter()
+        .copied()
         .filter(|v| *v > 0.0)
         .map(f64::ln)
         .collect();
@@ -109,7 +109,7 @@ pub fn find(rec: &Recording, p_false: f64) -> Vec<Disturbance> {
             })
             .collect();
         let var: Vec<f64> = mean.chunks_exact(WINDOW).map(detrended_variance).collect();
-        let nu = effective_dof(&mean, nu);
+        let nu = effective_dof(&var, nu);
         let threshold = ChiSquared::new(nu)
             .map(|c| c.inverse_cdf(1.0 - p_false / tests) / nu)
             .unwrap_or(f64::INFINITY);
@@ -279,7 +279,7 @@ mod tests {
             let v: Vec<f64> = y.chunks_exact(WINDOW).map(detrended_variance).collect();
             let m = v.iter().sum::<f64>() / v.len() as f64;
             let rel = v.iter().map(|a| (a / m - 1.0).powi(2)).sum::<f64>() / v.len() as f64;
-            let (want, got) = (2.0 / rel, effective_dof(&y, (WINDOW - 2) as f64));
+            let (want, got) = (2.0 / rel, effective_dof(&v, (WINDOW - 2) as f64));
             assert!(
                 (got / want - 1.0).abs() < 0.25,
                 "phi {phi}: {got} vs {want}"

@@ -54,11 +54,11 @@ pub fn fit(rec: &Recording, report: &Report, source: &str) -> Result<ClusterMode
     let mut axes = Vec::new();
     for af in &report.fitted {
         let (steps, warm_up_end_s) = axis_steps(report, af);
-        let det = Given {
+        let given = Given {
             steps: &steps,
             warm_up_end_s,
         };
-        axes.push(fit_axis(rec, af, &det, temp, t_ref, tau0, &mut an)?);
+        axes.push(fit_axis(rec, af, &given, temp, t_ref, tau0, &mut an)?);
     }
     let effects = report
         .effects
@@ -166,18 +166,17 @@ fn fit_axis(
     }
     let band = af.bandwidth.as_ref();
     let spec = Spec { tau0_s: tau0, band };
-    let mut whole_points = Vec::new();
-    let (whole, halves) = whole_and_halves(cleaned.first().map_or(0, Vec::len), |r| {
-        let points: Vec<Vec<AnalysisPoint>> = cleaned
-            .iter()
-            .map(|s| octave(an, &s[r.clone()], tau0))
-            .collect();
-        let obs = Obs::of(&typical_points(&points));
-        if r.start == 0 && r.end == cleaned.first().map_or(0, Vec::len) {
-            whole_points = points;
-        }
-        obs
-    });
+    // Per range: the sensors' octave points (the whole record's serve the coverage too) and the typical curve.
+    let ((whole_points, whole), halves) =
+        whole_and_halves(cleaned.first().map_or(0, Vec::len), |r| {
+            let points: Vec<Vec<AnalysisPoint>> = cleaned
+                .iter()
+                .map(|s| octave(an, &s[r.clone()], tau0))
+                .collect();
+            let obs = Obs::of(&typical_points(&points));
+            (points, obs)
+        });
+    let halves = halves.map(|[(_, a), (_, b)]| [a, b]);
     let (typical, band_kept) = terms_fit::fit_band_tested(&whole, as_slices(&halves), &spec);
     let band = band.filter(|_| band_kept);
     let spec = Spec { tau0_s: tau0, band };
