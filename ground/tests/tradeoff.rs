@@ -1,5 +1,6 @@
 //! `ground tradeoff` end to end (issue 43): from a simulated recording it writes both figures, the Markdown and the
-//! JSON; a board file that does not exist and a catalogue figure without a source are refused with exit code 1.
+//! JSON, with how many figures were checked against a retrieved text; a board file that does not exist and a
+//! catalogue figure without a source are refused with exit code 1.
 
 use std::path::PathBuf;
 use std::process::{Command, Output};
@@ -80,6 +81,32 @@ fn tradeoff_writes_both_figures_the_table_and_the_json() {
     let md = std::fs::read_to_string(out.join("tradeoff.md")).unwrap();
     assert!(
         md.contains("| gyro x |") && md.contains("Battery (seed + Pi)"),
+        "{md}"
+    );
+    // The checked counts, against the data files' own text: each inline figure is `…, checked = true|false, …`.
+    let count = |text: &str| {
+        (
+            text.matches(", checked = true,").count(),
+            text.matches(", checked = ").count(),
+        )
+    };
+    let (c, n) = count(host_test::tradeoff::catalogue::DEFAULT_TOML);
+    let (sc, sn) = count(host_test::tradeoff::board::SEED_TOML);
+    let (oc, on) = count(host_test::tradeoff::board::OURS_TOML);
+    assert!(
+        stdout.contains(&format!(
+            "figures checked against a retrieved text: catalogue {c} of {n}, seed + Pi {sc} of {sn}, ours (MCU) {oc} of {on}"
+        )),
+        "{stdout}"
+    );
+    assert_eq!(json["catalogue_checked"]["checked"], c);
+    assert_eq!(json["catalogue_checked"]["total"], n);
+    assert_eq!(budgets[1]["figures_checked"]["checked"], oc);
+    assert_eq!(budgets[1]["figures_checked"]["total"], on);
+    assert!(
+        md.contains(&format!("{c} of the catalogue's {n}."))
+            && md.contains(&format!("{sc} of the board file's {sn}."))
+            && md.contains(&format!("{oc} of the board file's {on}.")),
         "{md}"
     );
 }

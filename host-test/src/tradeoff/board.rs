@@ -2,7 +2,7 @@
 //! computed from its data sheet's Run and Sleep currents and the duty cycle `mcu-bench` measured
 //! (`docs/mcu-bench.json`) at the flight frame rate; the seed paper's battery figures as an implied mean power.
 
-use super::{Figure, TradeoffError};
+use super::{Checked, Figure, TradeoffError};
 use serde::{Deserialize, Serialize};
 
 /// The seed board with the Raspberry Pi (`data/boards/seed.toml`).
@@ -80,6 +80,30 @@ pub struct Board {
 }
 
 impl Board {
+    /// Every figure of the board: the battery's, the parts', the MCU's.
+    pub fn figures(&self) -> Vec<&Figure> {
+        let mut v: Vec<&Figure> = Vec::new();
+        if let Some(b) = &self.battery {
+            v.extend([&b.capacity_mah, &b.voltage_v, &b.hours_min, &b.hours_max]);
+        }
+        for p in &self.part {
+            v.extend(
+                [&p.supply_v, &p.current_ma, &p.mass_g]
+                    .into_iter()
+                    .flatten(),
+            );
+        }
+        if let Some(m) = &self.mcu {
+            v.extend([&m.clock_mhz, &m.supply_v, &m.run_ma, &m.sleep_ma, &m.mass_g]);
+        }
+        v
+    }
+
+    /// How many of the board's figures were checked against a retrieved text.
+    pub fn figures_checked(&self) -> Checked {
+        Checked::of(self.figures())
+    }
+
     /// Reads a board file (TOML text; `origin` names it in errors) and checks its figures.
     pub fn parse(text: &str, origin: &str) -> Result<Board, TradeoffError> {
         let b: Board = toml::from_str(text).map_err(|source| TradeoffError::Toml {
@@ -230,6 +254,8 @@ pub struct Budget {
     pub mass_g: f64,
     /// Parts without a mass.
     pub parts_without_mass: usize,
+    /// How many of the board file's figures were checked against a retrieved text.
+    pub figures_checked: Checked,
 }
 
 /// The figure's value, for a part with `Option` figures.
@@ -322,6 +348,7 @@ pub fn budget(board: &Board, bench: &Bench, frame_rate_hz: f64) -> Result<Budget
         power_w: lines.iter().map(|l| l.power_w).sum(),
         mass_g: lines.iter().filter_map(|l| l.mass_g).sum(),
         parts_without_mass: lines.iter().filter(|l| l.mass_g.is_none()).count(),
+        figures_checked: board.figures_checked(),
         lines,
         mcu,
     })

@@ -1,7 +1,7 @@
 //! The catalogue of commercial IMUs (`data/imus.toml`): each figure with its unit (in the field's name) and its
 //! source.
 
-use super::{Figure, TradeoffError};
+use super::{Checked, Figure, TradeoffError};
 use serde::{Deserialize, Serialize};
 
 /// The catalogue the binary carries (`data/imus.toml` at the repository's root).
@@ -85,6 +85,15 @@ pub fn parse(text: &str, origin: &str) -> Result<Vec<Imu>, TradeoffError> {
         });
     }
     Ok(file.imu)
+}
+
+/// How many of the catalogue's figures were checked against a retrieved text.
+pub fn checked(catalogue: &[Imu]) -> Checked {
+    Checked::of(
+        catalogue
+            .iter()
+            .flat_map(|i| i.figures().into_iter().map(|(_, _, f)| f)),
+    )
 }
 
 /// The default catalogue ([`DEFAULT_TOML`]).

@@ -47,6 +47,28 @@ impl Figure {
     }
 }
 
+/// How many figures of a data file were checked against a retrieved text (`ground tradeoff` prints it; the test
+/// `tradeoff::tests::the_docs_state_the_checked_counts` holds `docs/tradeoff.md` to it).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct Checked {
+    /// Figures with `checked = true`.
+    pub checked: usize,
+    /// All figures.
+    pub total: usize,
+}
+
+impl Checked {
+    /// Counts `figures`.
+    pub fn of<'a>(figures: impl IntoIterator<Item = &'a Figure>) -> Checked {
+        figures
+            .into_iter()
+            .fold(Checked::default(), |c, f| Checked {
+                checked: c.checked + usize::from(f.checked),
+                total: c.total + 1,
+            })
+    }
+}
+
 /// Why the trade-off could not be made.
 #[derive(Debug, thiserror::Error)]
 pub enum TradeoffError {
@@ -139,6 +161,8 @@ pub struct Tradeoff {
     pub batteries: Vec<(String, board::BatteryCheck)>,
     /// The catalogue.
     pub catalogue: Vec<catalogue::Imu>,
+    /// How many of the catalogue's figures were checked against a retrieved text.
+    pub catalogue_checked: Checked,
 }
 
 /// Computes the trade-off of `rec` (named `label`) on the boards of `inputs`.
@@ -175,6 +199,7 @@ pub fn compute(rec: &Recording, label: &str, inputs: &Inputs) -> Result<Tradeoff
         placement: place::place(rec)?,
         budgets,
         batteries,
+        catalogue_checked: catalogue::checked(&catalogue),
         catalogue,
     })
 }
@@ -201,4 +226,90 @@ pub fn run(
     })?;
     render::write_all(&t, out)?;
     Ok(t)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The counts of `checked = true` figures that docs/tradeoff.md states are the data files' own: the sentence
+    /// goes stale whenever a figure is checked, added or removed, and this test then fails.
+    #[test]
+    fn the_docs_state_the_checked_counts() {
+        let doc = include_str!("../../../docs/tradeoff.md");
+        let cat = catalogue::checked(&catalogue::default_catalogue().unwrap());
+        let board = |name: &str| {
+            board::Board::builtin(name)
+                .unwrap()
+                .unwrap()
+                .figures_checked()
+        };
+        let (seed, ours) = (board("seed"), board("ours"));
+        // An independent count: the TOML texts' own inline `, checked = …` entries (the header comments, which
+        // mention `checked = true`, are not preceded by a comma).
+        for (text, c) in [
+            (catalogue::DEFAULT_TOML, cat),
+            (board::SEED_TOML, seed),
+            (board::OURS_TOML, ours),
+        ] {
+            assert_eq!(c.checked, text.matches(", checked = true,").count());
+            assert_eq!(c.total, text.matches(", checked = ").count());
+            assert!(c.total > c.checked);
+        }
+        for (phrase, c) in [
+            ("of the catalogue's", cat),
+            ("of the seed board's", seed),
+            ("of our board's", ours),
+        ] {
+            assert_eq!(
+                stated(doc, phrase),
+                [(c.checked, c.total)],
+                "docs/tradeoff.md should say '{} {phrase} {} figures' (once)",
+                c.checked,
+                c.total
+            );
+        }
+    }
+
+    /// Every "N {phrase} M figures" of `text`, as (N, M).
+    fn stated(text: &str, phrase: &str) -> Vec<(usize, usize)> {
+        text.match_indices(phrase)
+            .filter_map(|(i, _)| {
+                let before = text.get(..i)?.trim_end();
+                let n = before.rsplit(|c: char| !c.is_ascii_digit()).next()?;
+                let after = text.get(i + phrase.len()..)?.trim_start();
+                let m = after.split(|c: char| !c.is_ascii_digit()).next()?;
+                let rest = after.get(m.len()..)?;
+                rest.trim_start()
+                    .starts_with("figures")
+                    .then_some((n.parse().ok()?, m.parse().ok()?))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn stated_counts_are_read_from_the_sentence() {
+        let t = "the makers of the catalogue's parts; 14 of the catalogue's 41 figures; 3 of the catalogue's 9\nfigures";
+        assert_eq!(stated(t, "of the catalogue's"), [(14, 41), (3, 9)]);
+        assert!(stated("of the catalogue's 41 figures", "of the catalogue's").is_empty());
+    }
+
+    #[test]
+    fn checked_counts_each_figure_once() {
+        let f = |checked| Figure {
+            value: 1.0,
+            source: "s".into(),
+            checked,
+            note: String::new(),
+        };
+        let figs = [f(true), f(false), f(true), f(false), f(false)];
+        assert_eq!(
+            Checked::of(&figs),
+            Checked {
+                checked: 2,
+                total: 5
+            }
+        );
+        assert_eq!(Checked::of(&[]), Checked::default());
+    }
 }

@@ -266,6 +266,11 @@ fn boards_section(s: &mut String, t: &Tradeoff) {
             sig3(b.power_w),
             sig3(b.mass_g)
         );
+        let _ = writeln!(
+            s,
+            "Figures checked against a retrieved text: {} of the board file's {}.\n",
+            b.figures_checked.checked, b.figures_checked.total
+        );
         if let Some(m) = &b.mcu {
             let _ = writeln!(
                 s,
@@ -323,6 +328,11 @@ fn catalogue_section(s: &mut String, t: &Tradeoff) {
             figs.len()
         );
     }
+    let _ = writeln!(
+        s,
+        "\nFigures checked against a retrieved text: {} of the catalogue's {}.",
+        t.catalogue_checked.checked, t.catalogue_checked.total
+    );
 }
 
 /// A few lines for the terminal: the plotted figures, each board's power and mass, the battery check.
@@ -361,6 +371,19 @@ pub fn summary(t: &Tradeoff) -> String {
         }
         let _ = writeln!(s);
     }
+    let _ = write!(
+        s,
+        "figures checked against a retrieved text: catalogue {} of {}",
+        t.catalogue_checked.checked, t.catalogue_checked.total
+    );
+    for b in &t.budgets {
+        let _ = write!(
+            s,
+            ", {} {} of {}",
+            b.short, b.figures_checked.checked, b.figures_checked.total
+        );
+    }
+    let _ = writeln!(s);
     for (name, c) in &t.batteries {
         let _ = writeln!(
             s,
