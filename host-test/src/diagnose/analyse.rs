@@ -41,11 +41,11 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, DiagnoseError
     if raw.is_empty() {
         return Err(DiagnoseError::NoAxis);
     }
-    // One sensor's bias step, found against its neighbours and removed before anything else is measured.
-    let found: Vec<Vec<steps::Step>> = raw
-        .iter()
-        .map(|w| steps::find(&w.series, opts.p_false))
-        .collect();
+    // One sensor's bias step, found against its neighbours and removed before anything else is measured. Its
+    // false-alarm budget is the whole record's, shared by the axes (as the shared-disturbance scan's): a false step
+    // costs two false effects, the step and the departure its removal leaves on the axis.
+    let p_step = opts.p_false / raw.len() as f64;
+    let found: Vec<Vec<steps::Step>> = raw.iter().map(|w| steps::find(&w.series, p_step)).collect();
     let fixed: Vec<Vec<Option<Vec<f64>>>> = raw
         .iter()
         .zip(&found)

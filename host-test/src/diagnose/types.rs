@@ -31,7 +31,8 @@ pub struct Options {
     pub model_tolerance: f64,
     /// Smallest share of the excess `Σ z² − n` an effect must remove to be accepted.
     pub min_shrink: f64,
-    /// False-alarm probability per axis of the test "the remaining gap of the axis is significant".
+    /// False-alarm probability per axis of the test "the remaining gap of the axis is significant"; the bias-step
+    /// and shared-disturbance scans take it for the whole record, shared by its axes.
     pub p_false: f64,
     /// Significance (standard deviations of the null correlation) for merging sensors into a block.
     pub merge_z: f64,
