@@ -207,17 +207,18 @@ fn typical_sensor(
     (typical, bandwidth, typ_terms, model_misfit)
 }
 
-/// The typical sensor's noise shape on the first half `first`: its five terms `typ`, and the Gauss–Markov terms of
-/// the twin's composite fit ([`terms_fit`]) of its curve `typical_pts`, their number chosen on the first half's two
-/// quarters (so the held-out half stays out of it); with none chosen, `typ` alone.
-fn typical_shape(
+/// The typical sensor's noise shape on the first half `first`: the Gauss–Markov terms of the twin's composite fit
+/// ([`terms_fit`]) of its curve `typical_pts`, their number chosen on the first half's two quarters (so the held-out
+/// half stays out of it), and the bandwidth put to the same held-out test (`terms_fit::fit_band_tested`: a
+/// Gauss–Markov bump can pass for a single-pole roll-off in `noisefit::fit_band_limited`'s look at short τ). Returns
+/// the composite terms and whether the bandwidth is kept.
+fn typical_shape_fit(
     an: &mut Analyzer,
     first: &[&[f64]],
     typical_pts: &[AnalysisPoint],
-    typ: Terms,
     bandwidth: Option<&noisefit::LowPass>,
     tau0: f64,
-) -> Shape {
+) -> (crate::twin::NoiseTerms, bool) {
     let q = first.iter().map(|s| s.len()).min().unwrap_or(0) / 2;
     let quarter = |an: &mut Analyzer, r: std::ops::Range<usize>| {
         let pts: Vec<Vec<AnalysisPoint>> = first
@@ -232,7 +233,11 @@ fn typical_shape(
         tau0_s: tau0,
         band: bandwidth,
     };
-    let fitted = terms_fit::fit(&terms_fit::Obs::of(typical_pts), Some([&a, &b]), &spec);
+    terms_fit::fit_band_tested(&terms_fit::Obs::of(typical_pts), Some([&a, &b]), &spec)
+}
+
+/// The typical sensor's shape from its composite `fitted` terms; with no Gauss–Markov term, its five terms `typ`.
+fn typical_shape(fitted: crate::twin::NoiseTerms, typ: Terms, tau0: f64) -> Shape {
     if fitted.gauss_markov.is_empty() {
         return Shape {
             five: typ,
@@ -293,17 +298,17 @@ fn analyse_axis(
     let pts_whole: Vec<Vec<AnalysisPoint>> = w.series.iter().map(|s| octave(an, s, tau0)).collect();
     let singles: Vec<NoiseFit> = pts_first.iter().map(|p| noisefit::fit(p)).collect();
     let typical_pts = median_curve(&pts_first);
-    let (typical, bandwidth, typ_terms, model_misfit) =
+    let (mut typical, mut bandwidth, mut typ_terms, model_misfit) =
         typical_sensor(&pts_first, &typical_pts, &singles, tau0);
     let wts = weights(opts.weights, &singles);
-    let shape = typical_shape(
-        an,
-        &first,
-        &typical_pts,
-        typ_terms,
-        bandwidth.as_ref(),
-        tau0,
-    );
+    let (fitted, band_kept) = typical_shape_fit(an, &first, &typical_pts, bandwidth.as_ref(), tau0);
+    if !band_kept {
+        // The roll-off did not hold on the held-out quarters: the typical sensor is its plain four-term fit.
+        bandwidth = None;
+        typical = noisefit::fit(&typical_pts);
+        typ_terms = terms_of(&typical);
+    }
+    let shape = typical_shape(fitted, typ_terms, tau0);
 
     let mb = opts.min_blocks;
     let hf = Half::measure(
