@@ -184,8 +184,9 @@ fn clean_records_of_the_null_name_at_most_two_effects_in_100() {
 
 /// The same null with a first-order Gauss–Markov bump on every sensor: measured, not met (issue 40, item 1). The
 /// typical sensor's shape now has the twin's Gauss–Markov terms (the EDF's noise type) and the disturbance test
-/// its degrees of freedom measured on the windows; on seeds 7,500,200–7,500,249: 54 effects in 50 records
-/// (`unexplained` 38, `common_mode` 10, disturbances 4, `bias_step` 2; on an earlier draw, before: 43
+/// its degrees of freedom measured on the windows; on seeds 7,500,200–7,500,249: 51 effects in 50 records
+/// (`unexplained` 36, `common_mode` 11, disturbances 4; 54 with `bias_step` 2 before the step scan counted every
+/// position; on an earlier draw, before: 43
 /// `unexplained`, 6 `common_mode`, 12 disturbances). What remains is not the EDF: on tuning seed 5046 the cluster
 /// exceeds the √N prediction by 1.5–2× at τ₀–4τ₀ while `unequal_noise` explains a quarter of it — the parts differ
 /// in white noise but share the bump's level, and the level candidate has one factor per sensor over all τ.
