@@ -10,7 +10,8 @@
 //! The test asserts ≤ 2 in 100 (4 of 200). These seeds are a lucky draw, and the target is not met: the same
 //! sweep on 800 other seeds (5,000–5,399, 100,000–100,199, 7,500,200–7,500,399) names 24 in 800 (3.0 in 100:
 //! `unexplained` 11, `common_mode` 8, `common_mode_drift` 3, `bias_step` 2); before the step scan counted every
-//! position, 69 in 800 (8.6 in 100, `bias_step` 24) and 3 in these 200 (docs/diagnose.md).
+//! position, 69 in 800 (8.6 in 100, `bias_step` 24) and 3 in these 200 (docs/diagnose.md). Other seeds:
+//! `DIAGNOSE_NULL_SEEDS=5000..5400 cargo test --release -p host-test --test diagnose_false_alarms -- --nocapture`.
 //! Gauss–Markov bumps are left out of this null (`clean_records_with_gauss_markov_bumps`, ignored, figures there).
 //!
 //! Records are short (4096 samples, 13.7 min at 5 Hz to 65.5 s at 62.5 Hz) so that the sweep runs in the dev
@@ -168,9 +169,19 @@ fn false_alarms(what: &str, results: &[Outcome], secs: f64) -> Vec<String> {
     out
 }
 
+/// The seeds of the sweep: `FIRST_SEED` and the `RECORDS` after it, or the range `FIRST..END` given in the
+/// environment variable `DIAGNOSE_NULL_SEEDS` (how the 800 other seeds above were swept; the bound is then the same).
+fn null_seeds() -> Vec<u64> {
+    let given = std::env::var("DIAGNOSE_NULL_SEEDS").ok().and_then(|v| {
+        let (a, b) = v.split_once("..")?;
+        Some(a.trim().parse::<u64>().ok()?..b.trim().parse::<u64>().ok()?)
+    });
+    given.unwrap_or(FIRST_SEED..FIRST_SEED + RECORDS).collect()
+}
+
 #[test]
 fn clean_records_of_the_null_name_at_most_two_effects_in_100() {
-    let seeds: Vec<u64> = (FIRST_SEED..FIRST_SEED + RECORDS).collect();
+    let seeds = null_seeds();
     let start = std::time::Instant::now();
     let results = sweep(&seeds, false);
     let found = false_alarms("null", &results, start.elapsed().as_secs_f64());
