@@ -176,18 +176,9 @@ fn median_curve(pts: &[Vec<AnalysisPoint>]) -> Vec<AnalysisPoint> {
         .collect()
 }
 
-/// The typical sensor of the first half (`typical_pts`: the per-τ median of the sensors' deviations `pts_first`) and
-/// its baseline noise model:
-/// the four terms with its single-pole bandwidth when the curve shows one (`noisefit::fit_band_limited`); and the
-/// sensors' RMS misfit to their own four-term and band-limited fits.
-fn typical_sensor(
-    pts_first: &[Vec<AnalysisPoint>],
-    typical_pts: &[AnalysisPoint],
-    singles: &[NoiseFit],
-    tau0: f64,
-) -> (NoiseFit, Option<noisefit::LowPass>, Terms, [f64; 2]) {
-    let (typical, bandwidth) = noisefit::fit_band_limited(typical_pts, tau0);
-    let typ_terms = terms_of(&typical);
+/// The sensors' RMS misfit to their own four-term fits (`singles`) and band-limited fits, on the first half's points
+/// `pts_first`.
+fn model_misfit(pts_first: &[Vec<AnalysisPoint>], singles: &[NoiseFit], tau0: f64) -> [f64; 2] {
     let misfit_of = |fits: &[(NoiseFit, Option<noisefit::LowPass>)]| {
         rms(pts_first.iter().zip(fits).flat_map(|(p, (f, lp))| {
             p.iter().filter(|q| q.dev > 0.0).map(move |q| {
@@ -203,8 +194,7 @@ fn typical_sensor(
         .iter()
         .map(|p| noisefit::fit_band_limited(p, tau0))
         .collect();
-    let model_misfit = [misfit_of(&four), misfit_of(&banded)];
-    (typical, bandwidth, typ_terms, model_misfit)
+    [misfit_of(&four), misfit_of(&banded)]
 }
 
 /// The typical sensor's noise shape on the first half `first`: the Gauss–Markov terms of the twin's composite fit
@@ -297,17 +287,20 @@ fn analyse_axis(
     let pts_held: Vec<Vec<AnalysisPoint>> = second.iter().map(|s| octave(an, s, tau0)).collect();
     let pts_whole: Vec<Vec<AnalysisPoint>> = w.series.iter().map(|s| octave(an, s, tau0)).collect();
     let singles: Vec<NoiseFit> = pts_first.iter().map(|p| noisefit::fit(p)).collect();
+    // The typical sensor of the first half (the per-τ median of the sensors' deviations) and its baseline noise
+    // model: the four terms, with its single-pole bandwidth when the curve shows one and the roll-off holds on the
+    // held-out quarters; otherwise its plain four-term fit.
     let typical_pts = median_curve(&pts_first);
-    let (mut typical, mut bandwidth, mut typ_terms, model_misfit) =
-        typical_sensor(&pts_first, &typical_pts, &singles, tau0);
+    let (banded, cut) = noisefit::fit_band_limited(&typical_pts, tau0);
+    let (fitted, band_kept) = typical_shape_fit(an, &first, &typical_pts, cut.as_ref(), tau0);
+    let (typical, bandwidth) = if band_kept {
+        (banded, cut)
+    } else {
+        (noisefit::fit(&typical_pts), None)
+    };
+    let typ_terms = terms_of(&typical);
+    let model_misfit = model_misfit(&pts_first, &singles, tau0);
     let wts = weights(opts.weights, &singles);
-    let (fitted, band_kept) = typical_shape_fit(an, &first, &typical_pts, bandwidth.as_ref(), tau0);
-    if !band_kept {
-        // The roll-off did not hold on the held-out quarters: the typical sensor is its plain four-term fit.
-        bandwidth = None;
-        typical = noisefit::fit(&typical_pts);
-        typ_terms = terms_of(&typical);
-    }
     let shape = typical_shape(fitted, typ_terms, tau0);
 
     let mb = opts.min_blocks;

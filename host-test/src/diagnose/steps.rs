@@ -162,7 +162,9 @@ fn crossings(u: f64, nb: usize, windows: &[usize]) -> f64 {
 }
 
 /// The scan's normal threshold: the level at which the expected crossings over `ns` sensors, the `windows` and
-/// every position of `nb` blocks are `p_false` (bisection; the count falls monotonically with the level).
+/// every position of `nb` blocks are `p_false` (bisection on [0, 40], first step at 20; the count is a high-level
+/// approximation that falls with the level above u ≈ 1 and is 0 at u = 0, so a bisection that starts from the low
+/// end, as `seedfit`'s, would stop there).
 fn scan_level(nb: usize, windows: &[usize], ns: usize, p_false: f64) -> f64 {
     let (mut lo, mut hi) = (0.0_f64, 40.0_f64);
     for _ in 0..100 {
