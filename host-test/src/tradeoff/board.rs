@@ -79,24 +79,55 @@ pub struct Board {
     pub mcu: Option<Mcu>,
 }
 
+impl Part {
+    /// The part's figures with their field names (each optional).
+    fn figures(&self) -> [(&'static str, Option<&Figure>); 3] {
+        [
+            ("supply_v", self.supply_v.as_ref()),
+            ("current_ma", self.current_ma.as_ref()),
+            ("mass_g", self.mass_g.as_ref()),
+        ]
+    }
+}
+
+impl Mcu {
+    /// The processor's figures with their field names.
+    fn figures(&self) -> [(&'static str, &Figure); 5] {
+        [
+            ("clock_mhz", &self.clock_mhz),
+            ("supply_v", &self.supply_v),
+            ("run_ma", &self.run_ma),
+            ("sleep_ma", &self.sleep_ma),
+            ("mass_g", &self.mass_g),
+        ]
+    }
+}
+
+impl Battery {
+    /// The battery's figures with their field names.
+    fn figures(&self) -> [(&'static str, &Figure); 4] {
+        [
+            ("capacity_mah", &self.capacity_mah),
+            ("voltage_v", &self.voltage_v),
+            ("hours_min", &self.hours_min),
+            ("hours_max", &self.hours_max),
+        ]
+    }
+}
+
 impl Board {
-    /// Every figure of the board: the battery's, the parts', the MCU's.
+    /// Every figure of the board: the parts', the MCU's, the battery's.
     pub fn figures(&self) -> Vec<&Figure> {
-        let mut v: Vec<&Figure> = Vec::new();
-        if let Some(b) = &self.battery {
-            v.extend([&b.capacity_mah, &b.voltage_v, &b.hours_min, &b.hours_max]);
-        }
-        for p in &self.part {
-            v.extend(
-                [&p.supply_v, &p.current_ma, &p.mass_g]
-                    .into_iter()
-                    .flatten(),
-            );
-        }
-        if let Some(m) = &self.mcu {
-            v.extend([&m.clock_mhz, &m.supply_v, &m.run_ma, &m.sleep_ma, &m.mass_g]);
-        }
-        v
+        let parts = self
+            .part
+            .iter()
+            .flat_map(|p| p.figures().into_iter().filter_map(|(_, f)| f));
+        let mcu = self.mcu.iter().flat_map(|m| m.figures().map(|(_, f)| f));
+        let battery = self
+            .battery
+            .iter()
+            .flat_map(|b| b.figures().map(|(_, f)| f));
+        parts.chain(mcu).chain(battery).collect()
     }
 
     /// How many of the board's figures were checked against a retrieved text.
@@ -111,11 +142,7 @@ impl Board {
             source: Box::new(source),
         })?;
         for p in &b.part {
-            for (field, f) in [
-                ("supply_v", &p.supply_v),
-                ("current_ma", &p.current_ma),
-                ("mass_g", &p.mass_g),
-            ] {
+            for (field, f) in p.figures() {
                 if let Some(f) = f {
                     f.check(origin, &format!("{}.{field}", p.name))?;
                 }
@@ -128,23 +155,12 @@ impl Board {
             }
         }
         if let Some(m) = &b.mcu {
-            for (field, f) in [
-                ("clock_mhz", &m.clock_mhz),
-                ("supply_v", &m.supply_v),
-                ("run_ma", &m.run_ma),
-                ("sleep_ma", &m.sleep_ma),
-                ("mass_g", &m.mass_g),
-            ] {
+            for (field, f) in m.figures() {
                 f.check(origin, &format!("{}.{field}", m.name))?;
             }
         }
         if let Some(bat) = &b.battery {
-            for (field, f) in [
-                ("capacity_mah", &bat.capacity_mah),
-                ("voltage_v", &bat.voltage_v),
-                ("hours_min", &bat.hours_min),
-                ("hours_max", &bat.hours_max),
-            ] {
+            for (field, f) in bat.figures() {
                 f.check(origin, &format!("battery.{field}"))?;
             }
         }

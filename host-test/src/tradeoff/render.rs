@@ -312,7 +312,7 @@ fn catalogue_section(s: &mut String, t: &Tradeoff) {
     );
     let opt = |f: &Option<super::Figure>| f.as_ref().map_or_else(|| "—".into(), |f| sig3(f.value));
     for i in &t.catalogue {
-        let figs = i.figures();
+        let c = super::Checked::of(i.figures().into_iter().map(|(_, _, f)| f));
         let _ = writeln!(
             s,
             "| {}{} | {} | {} | {} | {} | {} | {} | {} of {} |",
@@ -324,8 +324,8 @@ fn catalogue_section(s: &mut String, t: &Tradeoff) {
             opt(&i.accel_vrw_mps_rh),
             sig3(i.mass_g.value),
             sig3(i.power_w.value),
-            figs.iter().filter(|f| f.2.checked).count(),
-            figs.len()
+            c.checked,
+            c.total
         );
     }
     let _ = writeln!(
