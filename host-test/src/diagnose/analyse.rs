@@ -1,7 +1,7 @@
 //! The algorithm behind [`diagnose`](super::diagnose): per axis, measure, fit the candidates on the first half,
 //! select them on the second (the phases are listed in the module doc of `diagnose`).
 
-use super::candidates::{AxisWork, Candidate, build, candidates};
+use super::candidates::{AxisWork, Candidate, Fits, build, candidates};
 use super::model::{Cross, Model, Terms};
 use super::prediction::{Gaps, PointGap, evaluate, excess, scan_statistic, significant};
 use super::selection::{AxisState, acts, axis_label, select, sibling, threshold};
@@ -333,6 +333,10 @@ fn analyse_axis(
         tau0,
         temp.map(|t| &t[..half]),
         &typ_terms,
+        &Fits {
+            typical: terms_of(&noisefit::fit(&corrected_typical(&typical_pts, &hf))),
+            sensors: singles.iter().map(terms_of).collect(),
+        },
         opts,
         &own,
     );
@@ -359,6 +363,20 @@ fn analyse_axis(
         model_misfit,
         gave_up,
     }
+}
+
+/// The typical sensor's points (`pts`, the per-τ median) at the first half's bias-corrected typical variance where
+/// the half measured one: what sensors' own fits are divided by to give their levels relative to `V(τ)`.
+fn corrected_typical(pts: &[AnalysisPoint], hf: &Half) -> Vec<AnalysisPoint> {
+    pts.iter()
+        .map(|p| {
+            let mut p = p.clone();
+            if let Some(k) = hf.m.iter().position(|&m| m == p.m) {
+                p.dev = hf.typical[k].sqrt();
+            }
+            p
+        })
+        .collect()
 }
 
 /// Effects are shared by the axes of a sensor more often than not (a thermal bias, a common mode): an axis with no

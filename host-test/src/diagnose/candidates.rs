@@ -1,7 +1,7 @@
 //! Candidate effects of one axis (levels, common modes, blocks, thermal), all fitted on the first half.
 
 use super::analyse::UNEQUAL_LN_SPREAD;
-use super::model::{Cross, Model, Share, Terms};
+use super::model::{Cross, Model, Share, TermLevels, Terms};
 use super::periodic;
 use super::sensors::{departures, drift_candidate};
 use super::singles::{Half, octave, weighted_mean};
@@ -20,6 +20,8 @@ pub(super) struct Candidate {
     pub(super) kind: &'static str,
     /// Replaces the per-sensor level factors (heterogeneity) …
     pub(super) level: Option<Vec<f64>>,
+    /// … with their factors per noise term, when fitted …
+    pub(super) level_terms: Option<TermLevels>,
     /// … and/or adds cross terms.
     pub(super) cross: Vec<Cross>,
     pub(super) groups: Groups,
@@ -39,9 +41,16 @@ impl Candidate {
     pub(super) fn apply(&self, m: &mut Model) {
         if let Some(l) = &self.level {
             m.level = l.clone();
+            m.level_terms = self.level_terms.clone();
         }
         m.cross.extend(self.cross.iter().cloned());
     }
+}
+
+/// The first half's four-term fits of the typical sensor (the per-τ median) and of each sensor.
+pub(super) struct Fits {
+    pub(super) typical: Terms,
+    pub(super) sensors: Vec<Terms>,
 }
 
 pub(super) fn build(n: usize, chosen: &[&Candidate]) -> Model {
@@ -225,11 +234,15 @@ pub(super) fn candidates(
     tau0: f64,
     temp: Option<&[f64]>,
     typ: &Terms,
+    fits: &Fits,
     opts: &Options,
     own: &[periodic::OwnLine],
 ) -> Vec<Candidate> {
     let ns = first.len();
-    let mut cands: Vec<Candidate> = level_candidate(w, hf, ns).into_iter().collect();
+    let mut cands: Vec<Candidate> = level_candidate(w, hf, ns, fits)
+        .into_iter()
+        .flatten()
+        .collect();
     let cl = correlation_blocks(first, tau0, typ, opts.merge_z);
     let partial = !cl.is_empty() && cl.iter().all(|c| c.len() <= ns - 2);
     if partial {
@@ -267,8 +280,12 @@ pub(super) fn candidates(
 }
 
 /// Heterogeneity: each sensor's level relative to the typical one (median over τ of the deviation ratio), as
-/// `outlier_sensor` or `unequal_noise`.
-fn level_candidate(w: &AxisWork, hf: &Half, ns: usize) -> Option<Candidate> {
+/// `outlier_sensor` or `unequal_noise`, offered twice: with that one factor per sensor, and with each sensor's level
+/// as it varies with τ, from the first half's fits (`fits`, [`TermLevels`]). Parts differ term by term; but a
+/// single sensor's fit also carries its long-τ estimation error, which the one factor (a median over every τ) does
+/// not: on the null of unequal parts (`tests/diagnose_false_alarms.rs`) either form alone left gaps the other
+/// closes, 14 and 13 false alarms in 400 records, both together 8.
+fn level_candidate(w: &AxisWork, hf: &Half, ns: usize, fits: &Fits) -> Option<[Candidate; 2]> {
     let ratio: Vec<f64> = (0..ns)
         .map(|i| {
             let l: Vec<f64> = (0..hf.len())
@@ -305,16 +322,31 @@ fn level_candidate(w: &AxisWork, hf: &Half, ns: usize) -> Option<Candidate> {
     } else {
         ("unequal_noise", w.groups.clone())
     };
-    Some(Candidate {
-        kind,
-        level: Some(ratio.iter().map(|r| r * r).collect()),
-        cross: Vec::new(),
-        groups: Groups::List(groups),
-        params: serde_json::json!({
+    let params = |varies: bool| {
+        serde_json::json!({
             "deviation_ratio_to_typical": (0..ns).map(|i| (w.groups[i].to_string(), ratio[i])).collect::<BTreeMap<_, _>>(),
             "ln_spread": ln_spread,
+            "level_varies_with_tau": varies,
+        })
+    };
+    let constant = Candidate {
+        kind,
+        level: Some(ratio.iter().map(|r| r * r).collect()),
+        level_terms: None,
+        cross: Vec::new(),
+        groups: Groups::List(groups),
+        params: params(false),
+    };
+    let varying = Candidate {
+        level_terms: Some(TermLevels {
+            typical: fits.typical,
+            own: fits.sensors.clone(),
+            tau_max_s: hf.tau_s.last().copied().unwrap_or(0.0),
         }),
-    })
+        params: params(true),
+        ..constant.clone()
+    };
+    Some([constant, varying])
 }
 
 /// Blocks: clusters of the Allan correlation matrix (of two sensors or more; empty below four sensors).
@@ -405,6 +437,7 @@ fn block_candidate(
     (cross.len() == cl.len()).then(|| Candidate {
         kind: "block_common_mode",
         level: None,
+        level_terms: None,
         cross,
         groups: Groups::Blocks(
             cl.iter()
@@ -478,6 +511,7 @@ fn shared_candidates(
                 "common_mode"
             },
             level: None,
+            level_terms: None,
             cross: vec![Cross::Shared {
                 members: all.to_vec(),
                 share: Share {
@@ -506,6 +540,7 @@ fn thermal_candidate(w: &AxisWork, first: &[&[f64]], t: &[f64], tau0: f64) -> Ca
     Candidate {
         kind: "thermal",
         level: None,
+        level_terms: None,
         cross: vec![Cross::Thermal { beta: beta.clone() }],
         groups: Groups::List(w.groups.clone()),
         params: serde_json::json!({

@@ -157,11 +157,37 @@ pub enum Cross {
     },
 }
 
+/// Each sensor's variance relative to the typical sensor's as a function of τ, from first-half fits of the same
+/// composite model: `q_i(τ) = S_i(τ) / T(τ)`, `S_i` sensor i's terms and `T` the typical's (both the four-term fit),
+/// held at its value at `tau_max_s`, the longest τ the fits saw. Parts differ term by term (one with 1.4× the
+/// typical white noise and 0.8× its flicker has `q` falling from 1.96 to 0.64 where the terms hand over, one with a
+/// random walk the typical lacks rises at long τ), which one factor per sensor cannot follow.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TermLevels {
+    /// The typical sensor's terms `T`.
+    pub typical: Terms,
+    /// Each sensor's terms `S_i`.
+    pub own: Vec<Terms>,
+    /// The longest τ of the fits, s.
+    pub tau_max_s: f64,
+}
+
+impl TermLevels {
+    /// Sensor `i`'s variance factor at `tau_s` (none for an unknown sensor or a ratio that is not positive).
+    pub fn at(&self, i: usize, tau_s: f64) -> Option<f64> {
+        let t = tau_s.min(self.tau_max_s);
+        let q = self.own.get(i)?.avar(t) / self.typical.avar(t);
+        (q.is_finite() && q > 0.0).then_some(q)
+    }
+}
+
 /// A prediction model of one axis.
 #[derive(Clone, Debug)]
 pub struct Model {
-    /// Variance factor of each sensor relative to the typical one (1 for the √N model).
+    /// Variance factor of each sensor relative to the typical one (1 for the √N model) …
     pub level: Vec<f64>,
+    /// … or, when fitted, a factor that varies with τ (it takes precedence over `level`).
+    pub level_terms: Option<TermLevels>,
     /// Cross terms.
     pub cross: Vec<Cross>,
 }
@@ -171,14 +197,24 @@ impl Model {
     pub fn independent(n: usize) -> Model {
         Model {
             level: vec![1.0; n],
+            level_terms: None,
             cross: Vec::new(),
         }
+    }
+
+    /// Sensor `i`'s variance factor at `tau_s` relative to the typical sensor.
+    pub fn q(&self, i: usize, tau_s: f64) -> f64 {
+        self.level_terms
+            .as_ref()
+            .and_then(|l| l.at(i, tau_s))
+            .or_else(|| self.level.get(i).copied())
+            .unwrap_or(1.0)
     }
 
     /// Allan variance of `Σ w_i y_i` at `tau_s`, given the typical single-sensor Allan variance `typical` there
     /// and the temperature's Allan variance (°C², when a thermal term is present).
     pub fn avar(&self, w: &[f64], tau_s: f64, typical: f64, temp_avar: Option<f64>) -> f64 {
-        let q = |i: usize| self.level.get(i).copied().unwrap_or(1.0);
+        let q = |i: usize| self.q(i, tau_s);
         let wt = |i: usize| w.get(i).copied().unwrap_or(0.0);
         let mut v: f64 = (0..w.len()).map(|i| wt(i).powi(2) * q(i) * typical).sum();
         for c in &self.cross {
@@ -223,6 +259,7 @@ mod tests {
         };
         let m = Model {
             level: vec![1.0; 16],
+            level_terms: None,
             cross: vec![Cross::Shared {
                 members: (0..16).collect(),
                 share,
@@ -273,6 +310,40 @@ mod tests {
             (peak / (amp * amp) - x.sin().powi(4) / (x * x)).abs() < 1e-3,
             "{peak}"
         );
+    }
+
+    /// A sensor with twice the typical white noise and a random walk the typical lacks: its factor is the ratio of
+    /// the two curves, 2 at short τ rising at long τ, held beyond the fits' longest τ; the √N model's factor is 1.
+    #[test]
+    fn term_levels_are_the_ratio_of_the_fitted_curves_held_past_the_fits() {
+        let typical = Terms([0.0, 1e-2, 1e-4, 0.0, 0.0]);
+        let own = Terms([0.0, 2e-2, 1e-4, 3e-5, 0.0]);
+        let l = TermLevels {
+            typical,
+            own: vec![own],
+            tau_max_s: 100.0,
+        };
+        for tau in [0.01, 1.0, 37.0, 100.0] {
+            let want = own.avar(tau) / typical.avar(tau);
+            let got = l.at(0, tau).unwrap_or(f64::NAN);
+            assert!(
+                (got / want - 1.0).abs() < 1e-12,
+                "tau {tau}: {got} against {want}"
+            );
+        }
+        assert!((l.at(0, 0.01).unwrap_or(0.0) - 2.0).abs() < 0.02);
+        assert_eq!(l.at(0, 400.0), l.at(0, 100.0));
+        assert_eq!(l.at(1, 1.0), None);
+        let m = Model {
+            level: vec![1.0, 1.0],
+            level_terms: Some(l),
+            cross: Vec::new(),
+        };
+        // Sensor 0 from the curves, sensor 1 (no curve) from `level`.
+        let w = [0.5, 0.5];
+        let v = m.avar(&w, 37.0, 1.0, None);
+        let q0 = own.avar(37.0) / typical.avar(37.0);
+        assert!((v - 0.25 * (q0 + 1.0)).abs() < 1e-12, "{v}");
     }
 
     #[test]

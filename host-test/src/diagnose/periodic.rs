@@ -319,6 +319,7 @@ pub(super) fn periodic_candidates(
         out.push(Candidate {
             kind: "periodic",
             level: None,
+            level_terms: None,
             cross: mine
                 .iter()
                 .map(|o| Cross::OwnSine {
@@ -346,6 +347,7 @@ pub(super) fn periodic_candidates(
         out.push(Candidate {
             kind: "periodic",
             level: None,
+            level_terms: None,
             cross: vec![Cross::SharedSine {
                 members: members.to_vec(),
                 sine: line.sine,

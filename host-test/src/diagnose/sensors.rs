@@ -300,6 +300,7 @@ pub(super) fn drift_candidate(w: &AxisWork, deps: &[Departure]) -> Option<Candid
     Some(Candidate {
         kind: "sensor_drift",
         level: None,
+        level_terms: None,
         cross: deps
             .iter()
             .map(|d| Cross::Own {
