@@ -20,7 +20,14 @@ pub fn rms<T: Borrow<f64>>(v: impl IntoIterator<Item = T>) -> f64 {
 ///
 /// By selection (`select_nth_unstable`, linear time), not a full sort: the same values as sorting.
 pub fn median(v: &[f64]) -> f64 {
-    let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    median_in(v, &mut Vec::new())
+}
+
+/// [`median`] with `scratch` as its working space (for many medians without an allocation each).
+pub fn median_in(v: &[f64], scratch: &mut Vec<f64>) -> f64 {
+    scratch.clear();
+    scratch.extend(v.iter().copied().filter(|x| x.is_finite()));
+    let s = scratch;
     let n = s.len();
     if n == 0 {
         return f64::NAN;
@@ -36,6 +43,35 @@ pub fn median(v: &[f64]) -> f64 {
         .copied()
         .max_by(f64::total_cmp)
         .map_or(f64::NAN, |lo| 0.5 * (lo + hi))
+}
+
+/// For each `i`, `out[i]` = the [`median`] of the others (`v` without `v[i]`), the same values bit for bit, from one
+/// sort of `v` (in `sorted`, working space) instead of a selection per `i`: the others' middle values are the sorted
+/// values around the middle, one place further up where `v[i]` itself lies below them.
+pub fn medians_of_others(v: &[f64], sorted: &mut Vec<f64>, out: &mut [f64]) {
+    sorted.clear();
+    sorted.extend(v.iter().copied().filter(|x| x.is_finite()));
+    sorted.sort_unstable_by(f64::total_cmp);
+    let s = &sorted[..];
+    for (o, &x) in out.iter_mut().zip(v) {
+        // Leaving out a non-finite value leaves the finite ones (which `median` keeps) as they are. A finite one
+        // leaves out its first copy in the order (`total_cmp`: equal only when bit-identical).
+        let (skip, m) = if x.is_finite() {
+            (s.partition_point(|y| y.total_cmp(&x).is_lt()), s.len() - 1)
+        } else {
+            (s.len(), s.len())
+        };
+        let at = |j: usize| s.get(if j < skip { j } else { j + 1 }).copied();
+        let mid = m / 2;
+        *o = match (m, at(mid)) {
+            (0, _) | (_, None) => f64::NAN,
+            (_, Some(hi)) if m % 2 == 1 => hi,
+            (_, Some(hi)) => mid
+                .checked_sub(1)
+                .and_then(at)
+                .map_or(f64::NAN, |lo| 0.5 * (lo + hi)),
+        };
+    }
 }
 
 /// Sample standard deviation (divisor `n − 1`; NaN for fewer than two values).
@@ -101,6 +137,35 @@ mod tests {
         assert!(median(&[f64::NAN]).is_nan());
         assert_eq!(std_dev(&[1.0, 3.0]), 2f64.sqrt());
         assert!(std_dev(&[1.0]).is_nan());
+    }
+
+    /// Each sensor's median of the others from one sort is `median` of the vector without it, bit for bit: random
+    /// vectors of 1 to 20 values with ties, ±0, NaN and ±∞ mixed in.
+    #[test]
+    fn medians_of_others_are_the_medians_without_each() {
+        let mut rng = crate::testrng::TestRng::new(12);
+        let special = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 0.0, -0.0];
+        let (mut sorted, mut out) = (Vec::new(), Vec::new());
+        for trial in 0..2000 {
+            let n = 1 + trial % 20;
+            let v: Vec<f64> = (0..n)
+                .map(|_| {
+                    let u = rng.normal();
+                    if u > 1.5 {
+                        special[((u * 100.0) as usize) % special.len()]
+                    } else {
+                        (u * 3.0).round() * 0.5
+                    }
+                })
+                .collect();
+            out.resize(n, 0.0);
+            medians_of_others(&v, &mut sorted, &mut out);
+            for (i, got) in out.iter().enumerate() {
+                let others: Vec<f64> = (0..n).filter(|&j| j != i).map(|j| v[j]).collect();
+                let want = median(&others);
+                assert_eq!(got.to_bits(), want.to_bits(), "{v:?} without {i}");
+            }
+        }
     }
 
     /// The median by selection equals the middle of the sorted values (the mean of the two middle ones for an even

@@ -3,8 +3,10 @@
 
 use super::candidates::{AxisWork, Candidate, Fits, build, candidates};
 use super::model::{Cross, Model, Terms};
-use super::prediction::{Gaps, PointGap, evaluate, excess, scan_statistic, significant};
-use super::selection::{AxisState, acts, axis_label, select, sibling, threshold};
+use super::prediction::{
+    Gaps, PointGap, evaluate, excess, scan_statistic, scan_threshold, significant,
+};
+use super::selection::{AxisState, acts, axis_label, select, sibling};
 use super::sensors::confirmed;
 use super::singles::{Half, Shape, octave, terms_of};
 use super::summary::{gains, merge_effects, regions, tau_rows};
@@ -19,6 +21,7 @@ use crate::allan::{AnalysisPoint, Analyzer};
 use crate::formats::csv::{AXIS_NAMES, Recording, SensorKind};
 use crate::stats::{median, rms};
 use crate::twin::terms_fit;
+use rayon::prelude::*;
 use std::collections::BTreeMap;
 
 /// Log-spread of sensor levels (deviation ratios) above which the others are not "homogeneous" and the effect is
@@ -45,9 +48,14 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, DiagnoseError
     // false-alarm budget is the whole record's, shared by the axes (as the shared-disturbance scan's): a false step
     // costs two false effects, the step and the departure its removal leaves on the axis.
     let p_step = opts.p_false / raw.len() as f64;
-    let found: Vec<Vec<steps::Step>> = raw.iter().map(|w| steps::find(&w.series, p_step)).collect();
+    // The axes are independent until `retest_quiet_axes`: each phase runs them in parallel (rayon; results in axis
+    // order, each axis computed exactly as alone, so the report does not depend on the threads).
+    let found: Vec<Vec<steps::Step>> = raw
+        .par_iter()
+        .map(|w| steps::find(&w.series, p_step))
+        .collect();
     let fixed: Vec<Vec<Option<Vec<f64>>>> = raw
-        .iter()
+        .par_iter()
         .zip(&found)
         .map(|(w, st)| {
             (0..w.series.len())
@@ -77,17 +85,30 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, DiagnoseError
         .temp_c
         .as_deref()
         .filter(|t| t.len() >= n && t.iter().all(|x| x.is_finite()));
-    let mut an = Analyzer::new();
-    let mut thresholds: BTreeMap<(usize, u64), f64> = BTreeMap::new();
-    let mut states: Vec<AxisState> = works
-        .iter()
-        .map(|w| analyse_axis(&mut an, w, tau0, temp, opts, &mut thresholds))
-        .collect();
-    retest_quiet_axes(&works, &mut states, opts, &mut thresholds);
+    // The shared-disturbance scan needs nothing of the axes: it runs beside them.
+    let (disturbances, mut states) = rayon::join(
+        || quiet::find(rec, opts.p_false),
+        || -> Vec<AxisState> {
+            works
+                .par_iter()
+                .map_init(Analyzer::new, |an, w| analyse_axis(an, w, tau0, temp, opts))
+                .collect()
+        },
+    );
+    retest_quiet_axes(&works, &mut states, opts);
 
+    let parts: Vec<Assembled> = works
+        .par_iter()
+        .zip(states)
+        .map_init(Analyzer::new, |an, (w, st)| {
+            let mut part = Assembled::default();
+            report_axis(an, w, st, tau0, opts, &mut part);
+            part
+        })
+        .collect();
     let mut out = Assembled::default();
-    for (w, st) in works.iter().zip(states) {
-        report_axis(&mut an, w, st, tau0, opts, &mut thresholds, &mut out);
+    for part in parts {
+        out.append(part);
     }
     let Assembled {
         axes,
@@ -118,7 +139,7 @@ pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, DiagnoseError
         temperature: temp.is_some(),
         min_blocks: opts.min_blocks,
         p_false: opts.p_false,
-        disturbances: quiet::find(rec, opts.p_false),
+        disturbances,
         curves,
         fitted,
     })
@@ -276,7 +297,6 @@ fn analyse_axis(
     tau0: f64,
     temp: Option<&[f64]>,
     opts: &Options,
-    thresholds: &mut BTreeMap<(usize, u64), f64>,
 ) -> AxisState {
     let half = w.series[0].len() / 2;
     let first: Vec<&[f64]> = w.series.iter().map(|s| &s[..half]).collect();
@@ -341,7 +361,7 @@ fn analyse_axis(
         &own,
     );
     let hw = Half::measure(an, &w.series, &wts, tau0, mb, &shape, &pts_whole, temp);
-    let thr = threshold(thresholds, hw.len(), opts.p_false);
+    let thr = scan_threshold(hw.len(), opts.p_false);
     let mut chosen = select(&cands, &hw, &hh, &wts, opts, thr, None);
     // Effects that together remove less than half of the held-out excess are not named: the gap is `unexplained`.
     let gave_up = !unexplained::enough(&cands, &chosen, &hh, &wts, opts);
@@ -383,12 +403,7 @@ fn corrected_typical(pts: &[AnalysisPoint], hf: &Half) -> Vec<AnalysisPoint> {
 /// effect of its own is tested again, at the looser `p_sibling`, for the kinds found on its siblings; and for any
 /// kind when the sensor's axes together hold a significant gap (the scan of their summed z-scores, divided by
 /// √axes, at `p_false`) that none of them shows alone.
-fn retest_quiet_axes(
-    works: &[AxisWork],
-    states: &mut [AxisState],
-    opts: &Options,
-    thresholds: &mut BTreeMap<(usize, u64), f64>,
-) {
+fn retest_quiet_axes(works: &[AxisWork], states: &mut [AxisState], opts: &Options) {
     let pooled: Vec<bool> = works
         .iter()
         .map(|w| {
@@ -409,7 +424,7 @@ fn retest_quiet_axes(
             let sum: Vec<f64> = (0..n)
                 .map(|t| zs.iter().map(|z| z[t]).sum::<f64>() / k.sqrt())
                 .collect();
-            n > 0 && scan_statistic(&sum) > threshold(thresholds, n, opts.p_false)
+            n > 0 && scan_statistic(&sum) > scan_threshold(n, opts.p_false)
         })
         .collect();
     for i in 0..states.len() {
@@ -427,7 +442,7 @@ fn retest_quiet_axes(
         }
         let st = &states[i];
         let chosen = if kinds.is_empty() {
-            let thr = threshold(thresholds, st.hw.len(), opts.p_sibling);
+            let thr = scan_threshold(st.hw.len(), opts.p_sibling);
             select(&st.cands, &st.hw, &st.hh, &st.wts, opts, thr, None)
         } else {
             sibling(st, &kinds, opts).into_iter().collect()
@@ -445,6 +460,18 @@ struct Assembled {
     fitted: Vec<AxisFit>,
     gaps: Gaps,
     unexplained: Vec<Effect>,
+}
+
+impl Assembled {
+    /// Appends the next axis's part (axis order kept).
+    fn append(&mut self, next: Assembled) {
+        self.axes.extend(next.axes);
+        self.effects.extend(next.effects);
+        self.curves.extend(next.curves);
+        self.fitted.extend(next.fitted);
+        self.gaps.append(next.gaps);
+        self.unexplained.extend(next.unexplained);
+    }
 }
 
 /// Predicted white-region deviation ratio of the equal mean over the inverse-variance mean under `model`.
@@ -501,7 +528,6 @@ fn report_axis(
     st: AxisState,
     tau0: f64,
     opts: &Options,
-    thresholds: &mut BTreeMap<(usize, u64), f64>,
     out: &mut Assembled,
 ) {
     let ns = w.series.len();
@@ -517,7 +543,7 @@ fn report_axis(
     let after = evaluate(&model, hh, wts, tol);
     // The excess gap counts on an axis whose remaining gap is significant (the selection's own test), so a chance
     // excursion of a few long-τ points on a clean axis is not reported as a gap.
-    let thr = threshold(thresholds, hw.len(), opts.p_false);
+    let thr = scan_threshold(hw.len(), opts.p_false);
     let sig = [
         significant(&evaluate(&p0, hw, wts, tol), thr),
         significant(&evaluate(&model, hw, wts, tol), thr),

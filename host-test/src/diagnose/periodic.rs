@@ -9,7 +9,7 @@ use super::model::Cross;
 use super::singles::weighted_mean;
 use super::types::Groups;
 use crate::allan::detrend_linear;
-use crate::stats::median;
+use crate::stats::medians_of_others;
 use std::collections::BTreeMap;
 
 use super::model::Sine;
@@ -230,13 +230,15 @@ pub(super) fn deviations(series: &[&[f64]], b: usize) -> Vec<Vec<f64>> {
     let bm: Vec<Vec<f64>> = series.iter().map(|s| block_means(s, b)).collect();
     let nb = bm.iter().map(Vec::len).min().unwrap_or(0);
     let ns = series.len();
-    let mut others = Vec::with_capacity(ns);
+    let (mut at_k, mut sorted, mut med) = (vec![0.0; ns], Vec::with_capacity(ns), vec![0.0; ns]);
     let mut out = vec![vec![0.0; nb]; ns];
     for k in 0..nb {
-        for (i, o) in out.iter_mut().enumerate() {
-            others.clear();
-            others.extend((0..ns).filter(|&j| j != i).map(|j| bm[j][k]));
-            o[k] = bm[i][k] - median(&others);
+        for (a, m) in at_k.iter_mut().zip(&bm) {
+            *a = m[k];
+        }
+        medians_of_others(&at_k, &mut sorted, &mut med);
+        for ((o, a), m) in out.iter_mut().zip(&at_k).zip(&med) {
+            o[k] = a - m;
         }
     }
     out

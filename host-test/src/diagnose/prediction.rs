@@ -159,6 +159,16 @@ pub(super) struct Gaps {
 }
 
 impl Gaps {
+    /// Appends the next axis's points (axis order kept).
+    pub(super) fn append(&mut self, next: Gaps) {
+        self.fit_before.extend(next.fit_before);
+        self.fit_after.extend(next.fit_after);
+        self.held_before.extend(next.held_before);
+        self.held_after.extend(next.held_after);
+        self.raw_before.extend(next.raw_before);
+        self.raw_after.extend(next.raw_after);
+    }
+
     pub(super) fn add(
         &mut self,
         fb: &[PointGap],

@@ -3,7 +3,7 @@
 use super::analyse::{Acts, THERMAL_PREFERENCE};
 use super::candidates::{Candidate, build};
 use super::model::{Model, Terms};
-use super::prediction::{chi2, evaluate, octave_corr, scan_threshold, significant};
+use super::prediction::{chi2, evaluate, octave_corr, significant};
 use super::singles::{Half, region_name};
 use super::types::Options;
 use crate::allan::AnalysisPoint;
@@ -11,7 +11,6 @@ use crate::allan::noisefit;
 use crate::allan::noisefit::NoiseFit;
 use crate::formats::csv::{AXIS_NAMES, SensorKind};
 use statrs::distribution::{ContinuousCDF, Normal};
-use std::collections::BTreeMap;
 
 pub(super) fn axis_label(kind: SensorKind, axis: usize) -> String {
     format!(
@@ -54,13 +53,6 @@ pub(super) fn acts(
         h.tau_s[kmax],
         top,
     )
-}
-
-/// Memoised [`scan_threshold`].
-pub(super) fn threshold(cache: &mut BTreeMap<(usize, u64), f64>, n: usize, p: f64) -> f64 {
-    *cache
-        .entry((n, p.to_bits()))
-        .or_insert_with(|| scan_threshold(n, p))
 }
 
 /// What phase 1 keeps of an axis for the sibling pass and the report.

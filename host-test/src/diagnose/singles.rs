@@ -23,9 +23,14 @@ pub(super) fn octave(an: &mut Analyzer, y: &[f64], tau0: f64) -> Vec<AnalysisPoi
 pub(super) fn weighted_mean(series: &[&[f64]], w: &[f64]) -> Vec<f64> {
     let len = series.iter().map(|s| s.len()).min().unwrap_or(0);
     let mut out = vec![0.0; len];
-    for (s, wi) in series.iter().zip(w) {
-        for (o, x) in out.iter_mut().zip(s.iter()) {
-            *o += wi * x;
+    // By pieces that stay in the cache while every series is added in (each sample's sum in the same order).
+    const PIECE: usize = 2048;
+    for (k, piece) in out.chunks_mut(PIECE).enumerate() {
+        let at = k * PIECE;
+        for (s, wi) in series.iter().zip(w) {
+            for (o, x) in piece.iter_mut().zip(s.get(at..).unwrap_or(&[])) {
+                *o += wi * x;
+            }
         }
     }
     out

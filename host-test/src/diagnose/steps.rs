@@ -19,7 +19,7 @@
 //! the sensor's series before the rest of the diagnosis (spec: `docs/diagnose.md`).
 
 use crate::allan::median_to_mean;
-use crate::stats::median;
+use crate::stats::{median, median_in};
 use statrs::distribution::{Continuous, ContinuousCDF, Normal};
 
 /// Blocks the scan works on at most (the block length is `n / MAX_BLOCKS`, at least one sample).
@@ -40,30 +40,6 @@ pub struct Step {
     pub threshold: f64,
     /// The best window (each side), samples.
     pub window: usize,
-}
-
-/// Block means of `y` over `b` samples (the tail that does not fill a block is left out).
-fn blocks(y: &[f64], b: usize) -> Vec<f64> {
-    y.chunks_exact(b)
-        .map(|c| c.iter().sum::<f64>() / b as f64)
-        .collect()
-}
-
-/// `d_i`: each sensor's block means minus the median of the others'.
-fn deviations(series: &[&[f64]], b: usize) -> Vec<Vec<f64>> {
-    let bm: Vec<Vec<f64>> = series.iter().map(|s| blocks(s, b)).collect();
-    let nb = bm.iter().map(Vec::len).min().unwrap_or(0);
-    let ns = series.len();
-    let mut out = vec![vec![0.0; nb]; ns];
-    let mut others = Vec::with_capacity(ns);
-    for k in 0..nb {
-        for i in 0..ns {
-            others.clear();
-            others.extend((0..ns).filter(|&j| j != i).map(|j| bm[j][k]));
-            out[i][k] = bm[i][k] - median(&others);
-        }
-    }
-    out
 }
 
 /// Half-width (blocks) of the running median an impulse is measured against: impulses up to this many blocks long
@@ -87,8 +63,9 @@ fn despike(d: &mut [f64]) -> usize {
     if n < 2 * h + 2 {
         return 0;
     }
+    let mut scratch = Vec::with_capacity(2 * h + 1);
     let local: Vec<f64> = (0..n)
-        .map(|k| median(&d[k.saturating_sub(h)..(k + h + 1).min(n)]))
+        .map(|k| median_in(&d[k.saturating_sub(h)..(k + h + 1).min(n)], &mut scratch))
         .collect();
     let departures: Vec<f64> = d.iter().zip(&local).map(|(x, m)| (x - m).abs()).collect();
     let scale = 1.482_602_2 * median(&departures);
@@ -200,7 +177,8 @@ pub fn find(series: &[&[f64]], p_false: f64) -> Vec<Step> {
         return Vec::new();
     }
     let b = (n / MAX_BLOCKS).max(1);
-    let mut d = deviations(series, b);
+    // The block means and deviations are the periodic search's (the same `d_i`).
+    let mut d = super::periodic::deviations(series, b);
     for x in &mut d {
         despike(x);
     }
