@@ -279,6 +279,26 @@ pub(super) fn candidates(
     cands
 }
 
+/// Each sensor's deviation relative to the typical one: the median over τ of `√(singles[i][k] / typical[k])`
+/// (Allan variances, at the same τ); `None` unless every ratio is finite and positive.
+pub(crate) fn deviation_ratios(singles: &[Vec<f64>], typical: &[f64]) -> Option<Vec<f64>> {
+    let ratio: Vec<f64> = singles
+        .iter()
+        .map(|s| {
+            let l: Vec<f64> = s
+                .iter()
+                .zip(typical)
+                .map(|(a, t)| 0.5 * (a / t).ln())
+                .collect();
+            median(&l).exp()
+        })
+        .collect();
+    ratio
+        .iter()
+        .all(|r| r.is_finite() && *r > 0.0)
+        .then_some(ratio)
+}
+
 /// Heterogeneity: each sensor's level relative to the typical one (median over τ of the deviation ratio), as
 /// `outlier_sensor` or `unequal_noise`, offered twice: with that one factor per sensor, and with each sensor's level
 /// as it varies with τ, from the first half's fits (`fits`, [`TermLevels`]). Parts differ term by term; but a
@@ -286,17 +306,7 @@ pub(super) fn candidates(
 /// not: on the null of unequal parts (`tests/diagnose_false_alarms.rs`) either form alone left gaps the other
 /// closes, 14 and 13 false alarms in 400 records, both together 8.
 fn level_candidate(w: &AxisWork, hf: &Half, ns: usize, fits: &Fits) -> Option<[Candidate; 2]> {
-    let ratio: Vec<f64> = (0..ns)
-        .map(|i| {
-            let l: Vec<f64> = (0..hf.len())
-                .map(|k| 0.5 * (hf.singles[i][k] / hf.typical[k]).ln())
-                .collect();
-            median(&l).exp()
-        })
-        .collect();
-    if !ratio.iter().all(|r| r.is_finite() && *r > 0.0) {
-        return None;
-    }
+    let ratio = deviation_ratios(&hf.singles[..ns.min(hf.singles.len())], &hf.typical)?;
     let outliers: Vec<usize> = (0..ns).filter(|&i| ratio[i] >= 2.0).collect();
     let rest: Vec<f64> = (0..ns)
         .filter(|i| !outliers.contains(i))

@@ -25,6 +25,7 @@
 
 mod analyse;
 mod candidates;
+pub(crate) use candidates::deviation_ratios;
 pub mod model;
 mod periodic;
 mod prediction;

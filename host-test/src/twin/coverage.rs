@@ -60,17 +60,12 @@ pub fn coverage(
         let Some(tau) = at.first().map(|p| p.tau_s) else {
             continue;
         };
-        let a: Vec<f64> = at.iter().map(|p| p.dev * p.dev).collect();
-        let nu: Vec<f64> = at.iter().map(|p| super::terms_fit::edf(p)).collect();
-        let sum: f64 = a.iter().sum();
-        let var_terms: f64 = a.iter().zip(&nu).map(|(a, n)| a * a / n).sum();
-        if !(sum > 0.0 && var_terms > 0.0) {
+        let Some((mean, nu)) = pooled(&at) else {
             continue;
-        }
-        let n = a.len() as f64;
-        let record = (sum / n).sqrt();
-        let Some((lo, hi)) = confidence_interval(record, sum * sum / var_terms, ONE_SIGMA_CI)
-        else {
+        };
+        let n = at.len() as f64;
+        let record = mean.sqrt();
+        let Some((lo, hi)) = confidence_interval(record, nu, ONE_SIGMA_CI) else {
             continue;
         };
         let model = (own.iter().map(|t| t.avar(tau, tau0_s, band)).sum::<f64>() / n).sqrt();
@@ -86,4 +81,19 @@ pub fn coverage(
         c.worst = c.worst.max(miss);
     }
     c
+}
+
+/// The sensors' mean Allan variance at one τ (`at`: each sensor's point there) and its Satterthwaite EDF
+/// `ν = (Σ aᵢ)² / Σ (aᵢ²/νᵢ)` (each sensor's Greenhall EDF νᵢ, the sensors' estimates independent); `None` when the
+/// points give no positive variance.
+pub fn pooled(at: &[&AnalysisPoint]) -> Option<(f64, f64)> {
+    let a: Vec<f64> = at.iter().map(|p| p.dev * p.dev).collect();
+    let sum: f64 = a.iter().sum();
+    let var_terms: f64 = at
+        .iter()
+        .zip(&a)
+        .map(|(p, a)| a * a / super::terms_fit::edf(p))
+        .sum();
+    (sum > 0.0 && var_terms > 0.0 && sum.is_finite())
+        .then(|| (sum / a.len() as f64, sum * sum / var_terms))
 }

@@ -3,12 +3,13 @@
 //!
 //! - **Thermal**: each sensor's coefficient is the diagnosis's; the sensors' series are fitted with
 //!   `β·(T − T_ref)` removed, so that the temperature is not counted twice (once in β, once as random walk).
-//! - **Typical sensor**: five terms (Q, N, B, K, R) and 0–2 Gauss–Markov terms ([`super::terms_fit`]: their count
-//!   chosen on the record's halves) fitted to the per-τ median of the sensors' octave Allan deviations, the median
-//!   scaled to a mean (χ² of the EDF), as the diagnosis does.
-//! - **Own terms**: where the diagnosis found unequal sensors (`unequal_noise`, `outlier_sensor`), the typical terms
-//!   scaled by its per-sensor level factors; else the typical terms: a five-term fit per sensor would copy each
-//!   sensor's long-τ estimation error (a handful of blocks) into the twin.
+//! - **Levels**: where the diagnosis found unequal sensors (`unequal_noise`, `outlier_sensor`), each sensor's
+//!   variance factor `qᵢ`, refitted by the diagnosis's estimator on the cleaned whole record ([`levels`]).
+//! - **Typical sensor** `T`: five terms (Q, N, B, K, R) and 0–2 Gauss–Markov terms ([`super::terms_fit`]: their
+//!   count chosen on the record's halves) fitted to the sensors' mean Allan variance over their mean factor `q̄`,
+//!   weighted by the mean's Satterthwaite EDF ([`mean_curve`]): the fit of the mean.
+//! - **Own terms**: `qᵢ·T` (T without levels), so that the model's mean sensor is the fit of the record's mean; a
+//!   five-term fit per sensor would copy each sensor's long-τ estimation error (a handful of blocks) into the twin.
 //! - **Shared processes**: refitted on the whole record from the members' mean as the typical sensor (Gauss–Markov
 //!   terms included); a member's independent terms are its own less the processes it shares, term by term.
 //! - **One sensor's drift** (`sensor_drift`): the Allan-variance terms the diagnosis added to that sensor, added to
@@ -166,21 +167,36 @@ fn fit_axis(
     }
     let band = af.bandwidth.as_ref();
     let spec = Spec { tau0_s: tau0, band };
-    // Per range: the sensors' octave points (the whole record's serve the coverage too) and the typical curve.
-    let ((whole_points, whole), halves) =
+    // Per range: the sensors' octave points (the whole record's serve the levels and the coverage too).
+    let (whole_points, halves_points) =
         whole_and_halves(cleaned.first().map_or(0, Vec::len), |r| {
-            let points: Vec<Vec<AnalysisPoint>> = cleaned
+            cleaned
                 .iter()
                 .map(|s| octave(an, &s[r.clone()], tau0))
-                .collect();
-            let obs = Obs::of(&typical_points(&points));
-            (points, obs)
+                .collect::<Vec<Vec<AnalysisPoint>>>()
         });
-    let halves = halves.map(|[(_, a), (_, b)]| [a, b]);
+    let level = af
+        .level
+        .as_ref()
+        .filter(|q| q.len() == ns)
+        .and_then(|_| levels(&whole_points));
+    // One sensor's drift (`sensor_drift`) is added to that sensor's own terms: out of the mean T is fitted to.
+    let mut drift = [0.0; 5];
+    for (_, c) in &af.cross {
+        if let Cross::Own { part, .. } = c {
+            drift
+                .iter_mut()
+                .zip(part.0)
+                .for_each(|(a, b)| *a += b.max(0.0) / ns as f64);
+        }
+    }
+    let curve = |p: &[Vec<AnalysisPoint>]| mean_curve(p, level.as_deref(), &drift, band);
+    let whole = curve(&whole_points);
+    let halves = halves_points.map(|h| h.map(|p| curve(&p)));
     let (typical, band_kept) = terms_fit::fit_band_tested(&whole, as_slices(&halves), &spec);
     let band = band.filter(|_| band_kept);
     let spec = Spec { tau0_s: tau0, band };
-    let own = own_terms(af, &typical, ns);
+    let own = own_terms(af, level.as_deref(), &typical, ns);
     let coverage = super::coverage::coverage(&whole_points, &own, tau0, band);
     let mut shared = shared_processes(af, &cleaned, &own, &spec, an);
     shared.extend(det.shared_sines.into_iter().map(|p| (p, Vec::new())));
@@ -379,11 +395,16 @@ fn members_mean(series: &[Vec<f64>], members: &[usize]) -> Vec<f64> {
         .collect()
 }
 
-/// Each sensor's own terms: the typical ones, scaled by the diagnosis's level factors where it found unequal
-/// sensors (a per-sensor five-term fit would copy each sensor's long-τ estimation error, from a handful of blocks,
+/// Each sensor's own terms: the typical ones, scaled by `level` (the refitted factors, [`levels`]) where the
+/// diagnosis found unequal sensors (a per-sensor five-term fit would copy each sensor's long-τ estimation error, from a handful of blocks,
 /// into the twin), plus the slow process the diagnosis found on one sensor (`sensor_drift`).
-fn own_terms(af: &AxisFit, typical: &NoiseTerms, ns: usize) -> Vec<NoiseTerms> {
-    let mut own: Vec<NoiseTerms> = match &af.level {
+fn own_terms(
+    af: &AxisFit,
+    level: Option<&[f64]>,
+    typical: &NoiseTerms,
+    ns: usize,
+) -> Vec<NoiseTerms> {
+    let mut own: Vec<NoiseTerms> = match level {
         Some(q) if q.len() == ns => q.iter().map(|&q| typical.scaled(q)).collect(),
         _ => vec![typical.clone(); ns],
     };
@@ -512,6 +533,64 @@ fn shared_part(points: &[AnalysisPoint], own: &[&NoiseTerms], spec: &Spec) -> Ve
                 avar: (o.avar - own_mean / m) / (1.0 - 1.0 / m),
                 ..o
             }
+        })
+        .collect()
+}
+
+/// Each sensor's variance factor relative to the typical sensor on `points` (each sensor's octave points), by the
+/// diagnosis's estimator ([`crate::diagnose::deviation_ratios`]: the median over τ of the deviation ratio, squared).
+/// Refitted here on the series the terms see, with their lines, steps and thermal part taken out and on the whole
+/// record: the diagnosis's factors, measured on the first half with the lines in, overstated a sensor whose
+/// excess was a line (on one MIMU4444 accelerometer 5.2 where its cleaned series gives 2.1).
+fn levels(points: &[Vec<AnalysisPoint>]) -> Option<Vec<f64>> {
+    let typical: Vec<f64> = typical_points(points)
+        .iter()
+        .map(|p| p.dev * p.dev)
+        .collect();
+    let singles: Vec<Vec<f64>> = points
+        .iter()
+        .map(|p| {
+            p.iter()
+                .take(typical.len())
+                .map(|x| x.dev * x.dev)
+                .collect()
+        })
+        .collect();
+    let r = crate::diagnose::deviation_ratios(&singles, &typical)?;
+    Some(r.iter().map(|r| r * r).collect())
+}
+
+/// The curve the typical terms are fitted to: the sensors' mean Allan variance, less the mean of the drifts
+/// `drift` (Allan-variance coefficients, already divided by the sensor count) the diagnosis gave single sensors,
+/// divided by their mean variance factor `q̄` (1 without factors), each point weighted by the inverse variance of the mean (its Satterthwaite EDF,
+/// [`super::coverage::pooled`]), at the τ every sensor has. With each sensor's own terms `qᵢ·T`, the model's mean
+/// sensor is then `q̄·T`: the fit of the mean, which the record's cluster and the coverage see. (The per-τ median
+/// it replaces falls below the mean where the parts' bumps and lines lie at different τ: on the MIMU4444 gyros
+/// the terms were 10–30 % off the record's mean there.)
+fn mean_curve(
+    points: &[Vec<AnalysisPoint>],
+    level: Option<&[f64]>,
+    drift: &[f64; 5],
+    band: Option<&crate::allan::noisefit::LowPass>,
+) -> Vec<Obs> {
+    let q_mean = level.map_or(1.0, |q| q.iter().sum::<f64>() / q.len().max(1) as f64);
+    let k = points.iter().map(Vec::len).min().unwrap_or(0);
+    (0..k)
+        .filter_map(|j| {
+            let at: Vec<&AnalysisPoint> = points.iter().filter_map(|p| p.get(j)).collect();
+            let tau_s = at.first()?.tau_s;
+            let (mean, nu) = super::coverage::pooled(&at)?;
+            let d: f64 = drift
+                .iter()
+                .zip(super::basis(tau_s, band))
+                .map(|(c, b)| c * b)
+                .sum();
+            let avar = (mean - d) / q_mean;
+            (avar > 0.0 && avar.is_finite()).then(|| Obs {
+                tau_s,
+                avar,
+                weight: nu / 2.0 / (avar * avar),
+            })
         })
         .collect()
 }

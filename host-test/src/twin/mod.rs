@@ -309,8 +309,8 @@ pub struct AxisModel {
     pub axis: String,
     /// `deg/s` or `g`.
     pub unit: String,
-    /// The typical sensor: the terms fitted to the per-τ median of the sensors' Allan deviations (thermal part
-    /// removed), which the twin plays for every sensor without effects.
+    /// The typical sensor: the terms fitted to the sensors' mean Allan variance over their mean level factor
+    /// (thermal part, steps and lines removed; `fit`), which the twin plays for every sensor without effects.
     pub typical: NoiseTerms,
     /// The effects the diagnosis kept on this axis.
     pub effects: Vec<String>,
