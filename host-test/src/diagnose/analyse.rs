@@ -390,7 +390,7 @@ fn analyse_axis(
 fn corrected_typical(pts: &[AnalysisPoint], hf: &Half) -> Vec<AnalysisPoint> {
     pts.iter()
         .map(|p| {
-            let mut p = p.clone();
+            let mut p = *p;
             if let Some(k) = hf.m.iter().position(|&m| m == p.m) {
                 p.dev = hf.typical[k].sqrt();
             }
