@@ -10,7 +10,7 @@
 //! 2. **P0**, the √N model: N independent copies of the typical sensor, `V(τ)/N` for equal weights, with `V` taken
 //!    from the half being predicted (the √N model has no other parameter).
 //! 3. **Candidates**, all fitted on the first half only (`model`): per-sensor level factors (`unequal_noise`,
-//!    `outlier_sensor`); a process shared by all sensors, split into its fast terms (`common_mode`: quantisation,
+//!    `outlier_sensor`; one factor per sensor, and again as levels that vary with τ, `model::TermLevels`); a process shared by all sensors, split into its fast terms (`common_mode`: quantisation,
 //!    white, flicker) and its slow terms (`common_mode_drift`: random walk, ramp), each as a share of the typical
 //!    variance; `block_common_mode` over blocks found by clustering the Allan correlation matrix; `thermal`
 //!    (coefficients on the measured temperature) when `temp_c` exists.
