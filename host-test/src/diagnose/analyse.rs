@@ -32,8 +32,8 @@ pub(super) const UNEQUAL_LN_SPREAD: f64 = 0.3;
 pub(super) const THERMAL_PREFERENCE: f64 = 0.8;
 
 /// Runs the diagnosis on a recording (all sensor columns; `temp_c` used when present). Phases: the axes
-/// ([`axis_works`]), each axis measured and its candidates selected ([`analyse_axis`]), the second look at axes
-/// without an effect ([`retest_quiet_axes`]), and each axis's report ([`report_axis`]).
+/// (`axis_works`), each axis measured and its candidates selected (`analyse_axis`), the second look at axes
+/// without an effect (`retest_quiet_axes`), and each axis's report (`report_axis`).
 pub fn diagnose(rec: &Recording, opts: &Options) -> Result<Report, DiagnoseError> {
     let tau0 = rec.sample_interval_s().ok_or(DiagnoseError::NoTimeBase)?;
     let n = rec.len();

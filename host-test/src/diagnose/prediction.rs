@@ -62,7 +62,7 @@ pub(super) fn octave_corr(lag: usize) -> f64 {
 }
 
 /// The scan statistic of a run of z-scores (ordered by τ): the largest standardised sum over contiguous windows,
-/// `max_{a ≤ b} Σ_{a..=b} z / √Var₀(Σ)`, with the null variance from [`octave_corr`]. One-sided, because every
+/// `max_{a ≤ b} Σ_{a..=b} z / √Var₀(Σ)`, with the null variance from `octave_corr`. One-sided, because every
 /// effect the diagnosis models adds variance; over windows, because an effect acts over a band of τ — from the
 /// first τ on (white-region effects), from some τ to the longest (drifts), or as a bump (a periodic temperature).
 pub fn scan_statistic(z: &[f64]) -> f64 {
