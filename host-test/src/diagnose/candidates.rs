@@ -20,7 +20,7 @@ pub(super) struct Candidate {
     pub(super) kind: &'static str,
     /// Replaces the per-sensor level factors (heterogeneity) …
     pub(super) level: Option<Vec<f64>>,
-    /// … with their factors per noise term, when fitted …
+    /// … or by levels that vary with τ, when offered so (they then take precedence over `level` in the model) …
     pub(super) level_terms: Option<TermLevels>,
     /// … and/or adds cross terms.
     pub(super) cross: Vec<Cross>,
@@ -47,7 +47,8 @@ impl Candidate {
     }
 }
 
-/// The first half's four-term fits of the typical sensor (the per-τ median) and of each sensor.
+/// The first half's four-term fits of the typical sensor (the per-τ median at its bias-corrected level) and of each
+/// sensor: the curves whose ratio is a sensor's level that varies with τ ([`TermLevels`]).
 pub(super) struct Fits {
     pub(super) typical: Terms,
     pub(super) sensors: Vec<Terms>,

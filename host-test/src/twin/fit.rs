@@ -396,8 +396,9 @@ fn members_mean(series: &[Vec<f64>], members: &[usize]) -> Vec<f64> {
 }
 
 /// Each sensor's own terms: the typical ones, scaled by `level` (the refitted factors, [`levels`]) where the
-/// diagnosis found unequal sensors (a per-sensor five-term fit would copy each sensor's long-τ estimation error, from a handful of blocks,
-/// into the twin), plus the slow process the diagnosis found on one sensor (`sensor_drift`).
+/// diagnosis found unequal sensors (a per-sensor five-term fit would copy each sensor's long-τ estimation error,
+/// from a handful of blocks, into the twin), plus the slow process the diagnosis found on one sensor
+/// (`sensor_drift`).
 fn own_terms(
     af: &AxisFit,
     level: Option<&[f64]>,
@@ -562,8 +563,8 @@ fn levels(points: &[Vec<AnalysisPoint>]) -> Option<Vec<f64>> {
 
 /// The curve the typical terms are fitted to: the sensors' mean Allan variance, less the mean of the drifts
 /// `drift` (Allan-variance coefficients, already divided by the sensor count) the diagnosis gave single sensors,
-/// divided by their mean variance factor `q̄` (1 without factors), each point weighted by the inverse variance of the mean (its Satterthwaite EDF,
-/// [`super::coverage::pooled`]), at the τ every sensor has. With each sensor's own terms `qᵢ·T`, the model's mean
+/// divided by their mean variance factor `q̄` (1 without factors), each point weighted by the inverse variance of
+/// the mean (its Satterthwaite EDF, [`super::coverage::pooled`]), at the τ every sensor has. With each sensor's own terms `qᵢ·T`, the model's mean
 /// sensor is then `q̄·T`: the fit of the mean, which the record's cluster and the coverage see. (The per-τ median
 /// it replaces falls below the mean where the parts' bumps and lines lie at different τ: on the MIMU4444 gyros
 /// the terms were 10–30 % off the record's mean there.)
