@@ -4,6 +4,7 @@
 //! on 20,000 rows of the interchange format with 16 groups (as `ground simulate` writes them).
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use host_test::allan::acov::AllanCov;
 use host_test::allan::{Analyzer, DevKind, Options, TauSpec};
 use host_test::formats::csv::{Recording, push_value};
 use host_test::testrng::TestRng;
@@ -26,6 +27,14 @@ fn bench(c: &mut Criterion) {
                 &Options::default(),
             ))
         })
+    });
+    // The diagnosis's cross covariances: 16 sensors, one half of the seed record.
+    let half: Vec<Vec<f64>> = (0..16)
+        .map(|_| (0..n / 2).map(|_| rng.uniform() - 0.5).collect())
+        .collect();
+    let refs: Vec<&[f64]> = half.iter().map(Vec::as_slice).collect();
+    g.bench_function("Allan covariance, 16 series × 272705 samples", |b| {
+        b.iter(|| black_box(AllanCov::compute(&refs, 1.0 / 18.9, 30)))
     });
     g.finish();
 

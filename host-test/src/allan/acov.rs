@@ -24,54 +24,80 @@ impl AllanCov {
     pub fn compute(series: &[&[f64]], tau0_s: f64, min_terms: usize) -> AllanCov {
         let n = series.len();
         let len = series.iter().map(|s| s.len()).min().unwrap_or(0);
-        let mut means: Vec<Vec<f64>> = series.iter().map(|s| s[..len].to_vec()).collect();
         let mut out = AllanCov {
             n,
             tau_s: Vec::new(),
             terms: Vec::new(),
             cov: Vec::new(),
         };
-        let mut tau = tau0_s;
-        let mut d = vec![0.0; n];
+        let mut d = Vec::with_capacity(CHUNK * n);
+        let enough = |blocks: usize| blocks >= 2 && blocks - 1 >= min_terms.max(1);
+        if n == 0 || !enough(len) {
+            return out;
+        }
+        // Level 0 from the series themselves; the block means of the next levels row by row (`means[k·n + i]`:
+        // block k of series i), so that one block's differences of all series lie together.
+        let mut c = vec![0.0; n * n];
+        for_chunks(len - 1, |k0, k1| {
+            d.clear();
+            for k in k0..k1 {
+                d.extend(series.iter().map(|s| s[k + 1] - s[k]));
+            }
+            add_products(&d, n, &mut c);
+        });
+        out.push(tau0_s, len - 1, c);
+        let mut means = vec![0.0; len / 2 * n];
+        for (j, row) in means.chunks_exact_mut(n).enumerate() {
+            for (m, s) in row.iter_mut().zip(series) {
+                *m = 0.5 * (s[2 * j] + s[2 * j + 1]);
+            }
+        }
+        let mut tau = 2.0 * tau0_s;
         loop {
-            let blocks = means.first().map_or(0, Vec::len);
-            if blocks < 2 || blocks - 1 < min_terms.max(1) {
+            let blocks = means.len() / n;
+            if !enough(blocks) {
                 break;
             }
             let mut c = vec![0.0; n * n];
-            for k in 0..blocks - 1 {
-                for (di, m) in d.iter_mut().zip(&means) {
-                    *di = m[k + 1] - m[k];
-                }
+            // The differences by chunks of blocks, each chunk's products added to every `C_ij` before the next.
+            for_chunks(blocks - 1, |k0, k1| {
+                d.clear();
+                d.extend(
+                    means[(k0 + 1) * n..(k1 + 1) * n]
+                        .iter()
+                        .zip(&means[k0 * n..k1 * n])
+                        .map(|(b, a)| b - a),
+                );
+                add_products(&d, n, &mut c);
+            });
+            out.push(tau, blocks - 1, c);
+            let half = blocks / 2;
+            for j in 0..half {
                 for i in 0..n {
-                    let di = d[i];
-                    let row = &mut c[i * n..i * n + n];
-                    for (cij, dj) in row[i..].iter_mut().zip(&d[i..]) {
-                        *cij += di * dj;
-                    }
+                    means[j * n + i] = 0.5 * (means[2 * j * n + i] + means[(2 * j + 1) * n + i]);
                 }
             }
-            let scale = 0.5 / (blocks - 1) as f64;
-            for i in 0..n {
-                for j in i..n {
-                    let v = c[i * n + j] * scale;
-                    c[i * n + j] = v;
-                    c[j * n + i] = v;
-                }
-            }
-            out.tau_s.push(tau);
-            out.terms.push(blocks - 1);
-            out.cov.push(c);
-            for m in &mut means {
-                let half = m.len() / 2;
-                for j in 0..half {
-                    m[j] = 0.5 * (m[2 * j] + m[2 * j + 1]);
-                }
-                m.truncate(half);
-            }
+            means.truncate(half * n);
             tau *= 2.0;
         }
         out
+    }
+
+    /// Adds a level: the sums of products `c` (upper triangle) over `terms` differences, scaled to ½⟨d_i d_j⟩ and
+    /// made symmetric.
+    fn push(&mut self, tau_s: f64, terms: usize, mut c: Vec<f64>) {
+        let n = self.n;
+        let scale = 0.5 / terms as f64;
+        for i in 0..n {
+            for j in i..n {
+                let v = c[i * n + j] * scale;
+                c[i * n + j] = v;
+                c[j * n + i] = v;
+            }
+        }
+        self.tau_s.push(tau_s);
+        self.terms.push(terms);
+        self.cov.push(c);
     }
 
     /// `C_ij` at `level`.
@@ -132,12 +158,149 @@ impl AllanCov {
     }
 }
 
+/// Differences (rows of the block-difference matrix) per chunk of [`AllanCov::compute`]: 16 series × 256 rows fill
+/// 32 KiB, the L1 data cache.
+const CHUNK: usize = 256;
+
+/// `c[i·n + j] += Σ_k d[k·n + i]·d[k·n + j]` for `j ≥ i` (the upper triangle; the rest is left as it is), each sum
+/// in increasing k, one product added at a time: the bits of the plain loop over k then i then j. By tiles of 4 × 4
+/// entries held in registers over all k (four independent chains of additions, compiled for AVX2 too): the plain
+/// loop reloaded and stored every entry at every k, ≈ 1.3 ns per product.
+/// `f(k0, k1)` for the chunks `k0..k1` of `0..terms`, in order.
+fn for_chunks(terms: usize, mut f: impl FnMut(usize, usize)) {
+    let mut k0 = 0;
+    while k0 < terms {
+        let k1 = (k0 + CHUNK).min(terms);
+        f(k0, k1);
+        k0 = k1;
+    }
+}
+
+#[multiversion::multiversion(targets("x86_64+avx2"))]
+fn add_products(d: &[f64], n: usize, c: &mut [f64]) {
+    const T: usize = 4;
+    let rows = if n == 0 { 0 } else { d.len() / n };
+    let whole = n - n % T;
+    for i0 in (0..n).step_by(T) {
+        for j0 in (i0..n).step_by(T) {
+            if i0 + T <= whole && j0 + T <= whole {
+                let mut acc = [[0.0; T]; T];
+                for (r, a) in acc.iter_mut().enumerate() {
+                    a.copy_from_slice(&c[(i0 + r) * n + j0..(i0 + r) * n + j0 + T]);
+                }
+                for row in d.chunks_exact(n).take(rows) {
+                    let dj: [f64; T] = std::array::from_fn(|q| row[j0 + q]);
+                    for (r, a) in acc.iter_mut().enumerate() {
+                        let di = row[i0 + r];
+                        for q in 0..T {
+                            a[q] += di * dj[q];
+                        }
+                    }
+                }
+                for (r, a) in acc.iter().enumerate() {
+                    c[(i0 + r) * n + j0..(i0 + r) * n + j0 + T].copy_from_slice(a);
+                }
+            } else {
+                for i in i0..(i0 + T).min(n) {
+                    for j in j0.max(i)..(j0 + T).min(n) {
+                        let mut a = c[i * n + j];
+                        for row in d.chunks_exact(n) {
+                            a += row[i] * row[j];
+                        }
+                        c[i * n + j] = a;
+                    }
+                }
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn noise(seed: u64, n: usize) -> Vec<f64> {
         crate::testrng::TestRng::new(seed).normals(n, 1.0)
+    }
+
+    /// The plain loop: differences block by block, every product added in increasing k (the order the tiled sums
+    /// must keep, bit for bit).
+    fn plain(series: &[&[f64]], min_terms: usize) -> Vec<Vec<f64>> {
+        let n = series.len();
+        let len = series.iter().map(|s| s.len()).min().unwrap_or(0);
+        let mut means: Vec<Vec<f64>> = series.iter().map(|s| s[..len].to_vec()).collect();
+        let mut out = Vec::new();
+        loop {
+            let blocks = means.first().map_or(0, Vec::len);
+            if blocks < 2 || blocks - 1 < min_terms.max(1) {
+                break;
+            }
+            let mut c = vec![0.0; n * n];
+            for k in 0..blocks - 1 {
+                let d: Vec<f64> = means.iter().map(|m| m[k + 1] - m[k]).collect();
+                for i in 0..n {
+                    for j in i..n {
+                        c[i * n + j] += d[i] * d[j];
+                    }
+                }
+            }
+            let scale = 0.5 / (blocks - 1) as f64;
+            for i in 0..n {
+                for j in i..n {
+                    let v = c[i * n + j] * scale;
+                    c[i * n + j] = v;
+                    c[j * n + i] = v;
+                }
+            }
+            out.push(c);
+            for m in &mut means {
+                let half = m.len() / 2;
+                for j in 0..half {
+                    m[j] = 0.5 * (m[2 * j] + m[2 * j + 1]);
+                }
+                m.truncate(half);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn tiled_sums_are_bit_identical_to_the_plain_loop() {
+        // Series counts around the tile size, lengths around the chunk; random walks, so that any change of order
+        // moves the last bits.
+        for (n, len) in [
+            (1, 5),
+            (3, 700),
+            (4, 257),
+            (5, 1000),
+            (8, 513),
+            (16, 3000),
+            (17, 600),
+        ] {
+            let series: Vec<Vec<f64>> = (0..n)
+                .map(|i| {
+                    let mut acc = 0.0;
+                    noise(i as u64 + 7, len)
+                        .into_iter()
+                        .map(|v| {
+                            acc += v;
+                            acc + 1e3
+                        })
+                        .collect()
+                })
+                .collect();
+            let refs: Vec<&[f64]> = series.iter().map(Vec::as_slice).collect();
+            let got = AllanCov::compute(&refs, 1.0, 2);
+            let want = plain(&refs, 2);
+            assert_eq!(got.cov.len(), want.len(), "{n} × {len}");
+            for (g, w) in got.cov.iter().zip(&want) {
+                assert!(
+                    g.iter().zip(w).all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "{n} × {len}"
+                );
+            }
+        }
+        assert!(AllanCov::compute(&[], 1.0, 2).cov.is_empty());
     }
 
     #[test]

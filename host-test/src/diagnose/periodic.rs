@@ -54,11 +54,14 @@ fn fft(re: &mut [f64], im: &mut [f64]) {
         }
     }
     let mut len = 2;
+    // Each stage's twiddles once (the same values as computed at every butterfly).
+    let mut twiddles = Vec::with_capacity(n / 2);
     while len <= n {
         let ang = -2.0 * std::f64::consts::PI / len as f64;
+        twiddles.clear();
+        twiddles.extend((0..len / 2).map(|k| (ang * k as f64).sin_cos()));
         for start in (0..n).step_by(len) {
-            for k in 0..len / 2 {
-                let (s, c) = (ang * k as f64).sin_cos();
+            for (k, &(s, c)) in twiddles.iter().enumerate() {
                 let (a, b) = (start + k, start + k + len / 2);
                 let (xr, xi) = (re[b] * c - im[b] * s, re[b] * s + im[b] * c);
                 re[b] = re[a] - xr;
@@ -125,11 +128,13 @@ fn periodogram(x: &[f64]) -> (Vec<f64>, usize) {
 fn background(p: &[f64], k: usize) -> (f64, usize) {
     let lo = k.saturating_sub(BACKGROUND).max(1);
     let hi = (k + BACKGROUND).min(p.len().saturating_sub(1));
-    let v: Vec<f64> = (lo..=hi)
-        .filter(|&j| j.abs_diff(k) > LOBE)
-        .filter_map(|j| p.get(j).copied())
-        .collect();
-    (v.iter().sum::<f64>() / v.len().max(1) as f64, v.len())
+    let v = || {
+        (lo..=hi)
+            .filter(move |&j| j.abs_diff(k) > LOBE)
+            .filter_map(|j| p.get(j).copied())
+    };
+    let count = v().count();
+    (v().sum::<f64>() / count.max(1) as f64, count)
 }
 
 /// The score a line must pass among `trials` (frequencies × series) at `p_false`, when the background holds
@@ -165,9 +170,10 @@ pub(super) fn strongest(z: &[f64], b: usize, tau0: f64, tests: f64, p_false: f64
         return None;
     }
     // Refine: the Hann power on a fine grid of ± one padded bin (cycles per block).
-    let f = (-20..=20)
+    let (f, _) = (-20..=20)
         .map(|s| (k as f64 + s as f64 / 20.0) / nfft as f64)
-        .max_by(|a, b| power_at(&x, *a).total_cmp(&power_at(&x, *b)))?;
+        .map(|f| (f, power_at(&x, f)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))?;
     let period_s = b as f64 * tau0 / f;
     Some(Line {
         sine: Sine {
