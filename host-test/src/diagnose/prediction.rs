@@ -66,17 +66,18 @@ pub(super) fn octave_corr(lag: usize) -> f64 {
 /// effect the diagnosis models adds variance; over windows, because an effect acts over a band of τ — from the
 /// first τ on (white-region effects), from some τ to the longest (drifts), or as a bump (a periodic temperature).
 pub fn scan_statistic(z: &[f64]) -> f64 {
+    // Adding one point to a window of `len` points: its variance 1 plus twice its covariance with the (up to two)
+    // points before it.
+    const LAGS: usize = OCTAVE_MA.len() - 1;
+    let step: [f64; LAGS + 1] = std::array::from_fn(|len| {
+        1.0 + 2.0 * (1..=len.min(LAGS)).map(octave_corr).sum::<f64>()
+    });
     let mut best = f64::NEG_INFINITY;
     for a in 0..z.len() {
         let (mut sum, mut var) = (0.0, 0.0);
         for (len, zk) in z[a..].iter().enumerate() {
             sum += zk;
-            // Adding one point: its variance 1 plus twice its covariance with the (up to two) points before it.
-            var += 1.0
-                + 2.0
-                    * (1..=len.min(OCTAVE_MA.len() - 1))
-                        .map(octave_corr)
-                        .sum::<f64>();
+            var += step[len.min(LAGS)];
             best = best.max(sum / var.sqrt());
         }
     }
