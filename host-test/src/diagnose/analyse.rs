@@ -8,7 +8,7 @@ use super::prediction::{
 };
 use super::selection::{AxisState, acts, axis_label, select, sibling};
 use super::sensors::confirmed;
-use super::singles::{Half, Shape, octave, terms_of};
+use super::singles::{Half, Shape, octave, octave_devs, terms_of};
 use super::summary::{gains, merge_effects, regions, tau_rows};
 use super::types::{
     AxisCurves, AxisFit, AxisReport, DiagnoseError, Effect, Groups, HeldOut, MIN_SAMPLES, Measured,
@@ -304,7 +304,8 @@ fn analyse_axis(
 
     // Single sensors of both halves, the typical sensor of the first.
     let pts_first: Vec<Vec<AnalysisPoint>> = first.iter().map(|s| octave(an, s, tau0)).collect();
-    let pts_held: Vec<Vec<AnalysisPoint>> = second.iter().map(|s| octave(an, s, tau0)).collect();
+    let pts_held: Vec<Vec<AnalysisPoint>> =
+        second.iter().map(|s| octave_devs(an, s, tau0)).collect();
     let pts_whole: Vec<Vec<AnalysisPoint>> = w.series.iter().map(|s| octave(an, s, tau0)).collect();
     let singles: Vec<NoiseFit> = pts_first.iter().map(|p| noisefit::fit(p)).collect();
     // The typical sensor of the first half (the per-τ median of the sensors' deviations) and its baseline noise

@@ -4,7 +4,7 @@ use super::analyse::UNEQUAL_LN_SPREAD;
 use super::model::{Cross, Model, Share, TermLevels, Terms};
 use super::periodic;
 use super::sensors::{departures, drift_candidate};
-use super::singles::{Half, octave, weighted_mean};
+use super::singles::{Half, octave_devs, weighted_mean};
 use super::types::{Groups, Options};
 use crate::allan::Analyzer;
 use crate::allan::acov::AllanCov;
@@ -103,7 +103,7 @@ pub(super) fn shared_fit(
         .collect();
     let w = vec![1.0 / k_m as f64; k_m];
     let mean = weighted_mean(&sub, &w);
-    let pts = octave(an, &mean, tau0);
+    let pts = octave_devs(an, &mean, tau0);
     let mut shared_rows = Vec::new();
     let mut indep_rows = Vec::new();
     let km = k_m as f64;

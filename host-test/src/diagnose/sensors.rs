@@ -5,7 +5,7 @@
 use super::candidates::{AxisWork, Candidate, Row5, fit_subset};
 use super::model::{Cross, Terms};
 use super::prediction::{scan_statistic, scan_threshold};
-use super::singles::{Half, octave, weighted_mean};
+use super::singles::{Half, octave_devs, weighted_mean};
 use super::types::{Groups, Options};
 use crate::allan::Analyzer;
 use crate::allan::chi2_z;
@@ -250,8 +250,8 @@ fn correlation_with_others(
     let others: Vec<&[f64]> = (0..ns).filter(|&j| j != i).map(|j| first[j]).collect();
     let m = weighted_mean(&others, &vec![1.0 / (ns - 1) as f64; ns - 1]);
     let sum: Vec<f64> = m.iter().zip(first[i]).map(|(a, b)| a + b).collect();
-    let pm = octave(an, &m, tau0);
-    let ps = octave(an, &sum, tau0);
+    let pm = octave_devs(an, &m, tau0);
+    let ps = octave_devs(an, &sum, tau0);
     let (mut num, mut wsum) = (0.0, 0.0);
     for k in k0..hf.len() {
         let (Some(a), Some(s)) = (

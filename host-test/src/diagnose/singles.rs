@@ -20,6 +20,11 @@ pub(super) fn octave(an: &mut Analyzer, y: &[f64], tau0: f64) -> Vec<AnalysisPoi
     )
 }
 
+/// [`octave`]'s τ and deviations only (no noise type, EDF or interval; the same values), where nothing else is read.
+pub(super) fn octave_devs(an: &mut Analyzer, y: &[f64], tau0: f64) -> Vec<AnalysisPoint> {
+    an.deviations(DevKind::Oadev, y, tau0, &TauSpec::Octave)
+}
+
 pub(super) fn weighted_mean(series: &[&[f64]], w: &[f64]) -> Vec<f64> {
     let len = series.iter().map(|s| s.len()).min().unwrap_or(0);
     let mut out = vec![0.0; len];
@@ -156,8 +161,8 @@ impl Half {
     ) -> Half {
         let n = series.iter().map(|s| s.len()).min().unwrap_or(0);
         let mean = weighted_mean(series, w);
-        let cl = octave(an, &mean, tau0);
-        let temp_pts = temp.map(|t| octave(an, t, tau0)).unwrap_or_default();
+        let cl = octave_devs(an, &mean, tau0);
+        let temp_pts = temp.map(|t| octave_devs(an, t, tau0)).unwrap_or_default();
         let ns = series.len();
         let mut h = Half {
             n,
