@@ -69,9 +69,8 @@ pub fn scan_statistic(z: &[f64]) -> f64 {
     // Adding one point to a window of `len` points: its variance 1 plus twice its covariance with the (up to two)
     // points before it.
     const LAGS: usize = OCTAVE_MA.len() - 1;
-    let step: [f64; LAGS + 1] = std::array::from_fn(|len| {
-        1.0 + 2.0 * (1..=len.min(LAGS)).map(octave_corr).sum::<f64>()
-    });
+    let step: [f64; LAGS + 1] =
+        std::array::from_fn(|len| 1.0 + 2.0 * (1..=len.min(LAGS)).map(octave_corr).sum::<f64>());
     let mut best = f64::NEG_INFINITY;
     for a in 0..z.len() {
         let (mut sum, mut var) = (0.0, 0.0);
