@@ -306,7 +306,8 @@ fn analyse_axis(
     let pts_first: Vec<Vec<AnalysisPoint>> = first.iter().map(|s| octave(an, s, tau0)).collect();
     let pts_held: Vec<Vec<AnalysisPoint>> =
         second.iter().map(|s| octave_devs(an, s, tau0)).collect();
-    let pts_whole: Vec<Vec<AnalysisPoint>> = w.series.iter().map(|s| octave(an, s, tau0)).collect();
+    let pts_whole: Vec<Vec<AnalysisPoint>> =
+        w.series.iter().map(|s| octave_devs(an, s, tau0)).collect();
     let singles: Vec<NoiseFit> = pts_first.iter().map(|p| noisefit::fit(p)).collect();
     // The typical sensor of the first half (the per-τ median of the sensors' deviations) and its baseline noise
     // model: the four terms, with its single-pole bandwidth when the curve shows one and the roll-off holds on the

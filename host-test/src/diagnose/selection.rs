@@ -59,7 +59,7 @@ pub(super) fn acts(
 pub(super) struct AxisState {
     pub(super) hf: Half,
     pub(super) hw: Half,
-    /// The sensors' octave OADEV of the whole record.
+    /// The sensors' octave OADEV of the whole record (deviations only: `octave_devs`).
     pub(super) pts_whole: Vec<Vec<AnalysisPoint>>,
     pub(super) hh: Half,
     pub(super) cands: Vec<Candidate>,

@@ -116,7 +116,8 @@ pub(super) fn regions(
 }
 
 /// RMS-noise and bias-stability gains of the whole record, with 68 % intervals (`singles`: the sensors' octave
-/// OADEV of the whole record, as measured for the significance test).
+/// deviations of the whole record, as measured for the significance test; the one sensor whose interval is needed
+/// is analysed in full here).
 pub(super) fn gains(
     an: &mut Analyzer,
     series: &[&[f64]],
@@ -146,8 +147,14 @@ pub(super) fn gains(
             .min_by(|a, b| a.dev.total_cmp(&b.dev))
             .cloned()
     };
-    let singles: Vec<AnalysisPoint> = singles.iter().filter_map(|p| min(p)).collect();
-    let single_min = median(&singles.iter().map(|p| p.dev).collect::<Vec<_>>());
+    // Each sensor's lowest point (`singles` hold deviations only: the interval is taken below, for the one sensor
+    // that needs it).
+    let mins: Vec<(usize, AnalysisPoint)> = singles
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| Some((i, min(p)?)))
+        .collect();
+    let single_min = median(&mins.iter().map(|(_, p)| p.dev).collect::<Vec<_>>());
     let Some(c) = min(&cluster) else {
         return (rms_gain, Gain::default());
     };
@@ -158,12 +165,17 @@ pub(super) fn gains(
             .map_or(0.0, |(lo, hi)| 0.5 * (hi / lo).ln())
     };
     let s_single = {
-        let m = singles.iter().min_by(|a, b| {
-            (a.dev - single_min)
+        let m = mins.iter().min_by(|a, b| {
+            (a.1.dev - single_min)
                 .abs()
-                .total_cmp(&(b.dev - single_min).abs())
+                .total_cmp(&(b.1.dev - single_min).abs())
         });
-        m.map_or(0.0, half) / (singles.len().max(1) as f64).sqrt()
+        // That sensor's full analysis (noise type, EDF, interval) at its lowest point.
+        let full = m.and_then(|(i, p)| {
+            let s = series.get(*i)?;
+            octave(an, s, tau0).into_iter().find(|q| q.m == p.m)
+        });
+        full.as_ref().map_or(0.0, half) / (mins.len().max(1) as f64).sqrt()
     };
     let s = (half(&c).powi(2) + s_single.powi(2)).sqrt();
     (
