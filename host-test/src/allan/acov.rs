@@ -31,7 +31,7 @@ impl AllanCov {
             cov: Vec::new(),
         };
         let mut d = Vec::with_capacity(CHUNK * n);
-        let enough = |blocks: usize| blocks >= 2 && blocks - 1 >= min_terms.max(1);
+        let enough = |blocks: usize| blocks > min_terms.max(1);
         if n == 0 || !enough(len) {
             return out;
         }
@@ -179,7 +179,7 @@ fn for_chunks(terms: usize, mut f: impl FnMut(usize, usize)) {
 #[multiversion::multiversion(targets("x86_64+avx2"))]
 fn add_products(d: &[f64], n: usize, c: &mut [f64]) {
     const T: usize = 4;
-    let rows = if n == 0 { 0 } else { d.len() / n };
+    let rows = d.len().checked_div(n).unwrap_or(0);
     let whole = n - n % T;
     for i0 in (0..n).step_by(T) {
         for j0 in (i0..n).step_by(T) {
