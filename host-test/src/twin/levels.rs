@@ -8,7 +8,7 @@
 //! octave points with a pull toward `qᵢ` worth ν₀ degrees of freedom (a pseudo-observation `fₖ = qᵢ`, relative
 //! weight ν₀/2), and ν₀ — ∞ (the one factor), 32, 4 or 0 — is chosen per sensor on the record's own halves: fitted
 //! on one half, scored on the other (`Σ ν/2·ln²(measured/model)`), both ways, the one factor kept unless another
-//! scores lower; the chosen factors are then refitted on the whole record. (Rescaling each group's factors to sum to
+//! scores lower by the 95th percentile of a χ² with the added parameters' degrees of freedom ([`gain_min`]); the chosen factors are then refitted on the whole record. (Rescaling each group's factors to sum to
 //! `Σ qᵢ`, to keep the model's mean sensor at `q̄·T`, was tried: the white and quantisation groups trade off, and on
 //! the MIMU4444 excerpt's gyro y it made every quiet sensor 20 % too loud in deviation; left out.)
 
@@ -16,6 +16,7 @@ use super::NoiseTerms;
 use super::terms_fit::Obs;
 use crate::allan::AnalysisPoint;
 use crate::allan::noisefit::{LowPass, nnls};
+use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 /// A sensor's factors of the five term groups relative to the typical terms.
 pub(super) type Factors = [f64; 5];
@@ -125,6 +126,19 @@ fn score(obs: &[Obs], typical: &Typical, f: &Factors) -> f64 {
         .sum()
 }
 
+/// What a sensor's own factors must take off the one factor's held-out cost (a χ², the points weighted by their
+/// inverse variance) to replace it: the 95th percentile of a χ² with as many degrees of freedom as they add
+/// parameters (`active` term groups less one), as the count of Gauss–Markov terms is chosen (`terms_fit`). ∞ (the
+/// one factor) with a single group.
+fn gain_min(active: usize) -> f64 {
+    match active.checked_sub(1) {
+        Some(k) if k >= 1 => {
+            ChiSquared::new(k as f64).map_or(f64::INFINITY, |c| c.inverse_cdf(0.95))
+        }
+        _ => f64::INFINITY,
+    }
+}
+
 /// One axis's sensors as the factors see them.
 pub(super) struct Sensors<'a> {
     /// Each sensor's octave points on the whole record.
@@ -148,6 +162,16 @@ pub(super) fn term_factors(s: &Sensors, q: &[f64], typical: &Typical) -> Option<
         super::fit::levels(&halves[1])?,
     ];
     let band = typical.band;
+    // The term groups the typical terms give some variance at the record's τ: the factors' count.
+    let active = (0..5)
+        .filter(|&k| {
+            s.whole
+                .iter()
+                .flatten()
+                .any(|p| typical.groups(p.tau_s)[k] > 0.0)
+        })
+        .count();
+    let gain_min = gain_min(active);
     let f: Vec<Factors> = (0..ns)
         .map(|i| {
             let obs = |p: &[Vec<AnalysisPoint>]| observations(&p[i], &s.drift[i], band);
@@ -168,7 +192,8 @@ pub(super) fn term_factors(s: &Sensors, q: &[f64], typical: &Typical) -> Option<
                     })
                     .sum()
             };
-            let mut best = (held_out(None), None);
+            let one = held_out(None);
+            let mut best = (one - gain_min, None);
             for nu0 in PULLS {
                 let sc = held_out(Some(nu0));
                 if sc < best.0 {
