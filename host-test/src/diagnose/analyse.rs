@@ -585,6 +585,11 @@ fn report_axis(
         groups: w.groups.clone(),
         effects: refs.iter().map(|c| c.kind).collect(),
         level: refs.iter().rev().find_map(|c| c.level.clone()),
+        level_terms: refs
+            .iter()
+            .rev()
+            .find(|c| c.level.is_some())
+            .and_then(|c| c.level_terms.clone()),
         cross: refs
             .iter()
             .flat_map(|c| c.cross.iter().map(move |x| (c.kind, x.clone())))

@@ -1,6 +1,6 @@
 //! The diagnosis's options and its report: what `diagnose` returns, `report` renders and the JSON holds.
 
-use super::model::Cross;
+use super::model::{Cross, TermLevels};
 use super::quiet;
 use crate::allan::noisefit;
 use crate::allan::noisefit::NoiseFit;
@@ -318,6 +318,10 @@ pub struct AxisFit {
     /// Variance factor of each sensor relative to the typical one, when a level effect (`unequal_noise`,
     /// `outlier_sensor`) was chosen.
     pub level: Option<Vec<f64>>,
+    /// The level's form that varies with τ (each sensor's first-half fit over the typical's), when the selection
+    /// chose it over the one factor per sensor (`params.level_varies_with_tau`); `None` with the one factor or
+    /// without a level effect.
+    pub level_terms: Option<TermLevels>,
     /// The chosen effects' cross terms, with the kind of the effect each belongs to.
     pub cross: Vec<(&'static str, Cross)>,
     /// The sensors' low-pass response, when the band-limited noise model fitted one (the report's `bandwidth_hz`).

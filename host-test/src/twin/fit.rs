@@ -8,7 +8,9 @@
 //! - **Typical sensor** `T`: five terms (Q, N, B, K, R) and 0–2 Gauss–Markov terms ([`super::terms_fit`]: their
 //!   count chosen on the record's halves) fitted to the sensors' mean Allan variance over their mean factor `q̄`,
 //!   weighted by the mean's Satterthwaite EDF ([`mean_curve`]): the fit of the mean.
-//! - **Own terms**: `qᵢ·T` (T without levels), so that the model's mean sensor is the fit of the record's mean; a
+//! - **Own terms**: `qᵢ·T` (T without levels), so that the model's mean sensor is the fit of the record's mean; where
+//!   the diagnosis chose the level that varies with τ (`AxisFit::level_terms`), T scaled term by term, each
+//!   sensor's factors held to its `qᵢ` by a pull chosen on the record's halves (`twin/levels.rs`). A free
 //!   five-term fit per sensor would copy each sensor's long-τ estimation error (a handful of blocks) into the twin.
 //! - **Shared processes**: refitted on the whole record from the members' mean as the typical sensor (Gauss–Markov
 //!   terms included); a member's independent terms are its own less the processes it shares, term by term.
@@ -21,6 +23,7 @@
 //! - **Temperature**: a line and up to two sinusoids (periods found by a least-squares scan), the rest as noise
 //!   terms ([`fit_temperature`]).
 
+use super::levels;
 use super::terms_fit::{self, Obs, Spec};
 use super::{
     AxisModel, BiasStep, ClusterModel, EffectSummary, FORMAT, Harmonic, NoiseTerms, RecordInfo,
@@ -192,11 +195,24 @@ fn fit_axis(
     }
     let curve = |p: &[Vec<AnalysisPoint>]| mean_curve(p, level.as_deref(), &drift, band);
     let whole = curve(&whole_points);
-    let halves = halves_points.map(|h| h.map(|p| curve(&p)));
+    let halves = halves_points
+        .as_ref()
+        .map(|h| h.each_ref().map(|p| curve(p)));
     let (typical, band_kept) = terms_fit::fit_band_tested(&whole, as_slices(&halves), &spec);
     let band = band.filter(|_| band_kept);
     let spec = Spec { tau0_s: tau0, band };
-    let own = own_terms(af, level.as_deref(), &typical, ns);
+    let factors = level_factors(
+        af,
+        level.as_deref(),
+        &whole_points,
+        halves_points.as_ref(),
+        &levels::Typical {
+            terms: &typical,
+            tau0_s: tau0,
+            band,
+        },
+    );
+    let own = own_terms(af, factors.as_deref(), &typical, ns);
     let coverage = super::coverage::coverage(&whole_points, &own, tau0, band);
     let mut shared = shared_processes(af, &cleaned, &own, &spec, an);
     shared.extend(det.shared_sines.into_iter().map(|p| (p, Vec::new())));
@@ -395,18 +411,48 @@ fn members_mean(series: &[Vec<f64>], members: &[usize]) -> Vec<f64> {
         .collect()
 }
 
-/// Each sensor's own terms: the typical ones, scaled by `level` (the refitted factors, [`levels`]) where the
-/// diagnosis found unequal sensors (a per-sensor five-term fit would copy each sensor's long-τ estimation error,
-/// from a handful of blocks, into the twin), plus the slow process the diagnosis found on one sensor
-/// (`sensor_drift`).
-fn own_terms(
+/// Each sensor's term factors where the diagnosis found unequal sensors: its one factor `qᵢ` (`level`, the refitted
+/// factors, [`levels`]) for every term, or, where the diagnosis chose the level that varies with τ
+/// (`AxisFit::level_terms`), factors per term group held to `qᵢ` and chosen on the record's halves
+/// ([`levels::term_factors`]; a free per-sensor fit would copy each sensor's long-τ estimation error, from a
+/// handful of blocks, into the twin). `None` without unequal sensors.
+fn level_factors(
     af: &AxisFit,
     level: Option<&[f64]>,
+    whole: &[Vec<AnalysisPoint>],
+    halves: Option<&[Vec<Vec<AnalysisPoint>>; 2]>,
+    typical: &levels::Typical,
+) -> Option<Vec<levels::Factors>> {
+    let q = level?;
+    let varying = af.level_terms.as_ref().and_then(|_| {
+        let mut drift = vec![[0.0; 5]; q.len()];
+        for (_, c) in &af.cross {
+            if let Cross::Own { sensor, part } = c
+                && let Some(d) = drift.get_mut(*sensor)
+            {
+                d.iter_mut().zip(part.0).for_each(|(a, b)| *a += b.max(0.0));
+            }
+        }
+        let sensors = levels::Sensors {
+            whole,
+            halves,
+            drift: &drift,
+        };
+        levels::term_factors(&sensors, q, typical)
+    });
+    Some(varying.unwrap_or_else(|| q.iter().map(|&q| [q; 5]).collect()))
+}
+
+/// Each sensor's own terms: the typical ones, scaled term by term by `factors` ([`level_factors`]) where the
+/// diagnosis found unequal sensors, plus the slow process the diagnosis found on one sensor (`sensor_drift`).
+fn own_terms(
+    af: &AxisFit,
+    factors: Option<&[levels::Factors]>,
     typical: &NoiseTerms,
     ns: usize,
 ) -> Vec<NoiseTerms> {
-    let mut own: Vec<NoiseTerms> = match level {
-        Some(q) if q.len() == ns => q.iter().map(|&q| typical.scaled(q)).collect(),
+    let mut own: Vec<NoiseTerms> = match factors {
+        Some(f) if f.len() == ns => f.iter().map(|f| typical.by_term_factors(f)).collect(),
         _ => vec![typical.clone(); ns],
     };
     for (_, c) in &af.cross {
@@ -543,7 +589,7 @@ fn shared_part(points: &[AnalysisPoint], own: &[&NoiseTerms], spec: &Spec) -> Ve
 /// Refitted here on the series the terms see, with their lines, steps and thermal part taken out and on the whole
 /// record: the diagnosis's factors, measured on the first half with the lines in, overstated a sensor whose
 /// excess was a line (on one MIMU4444 accelerometer 5.2 where its cleaned series gives 2.1).
-fn levels(points: &[Vec<AnalysisPoint>]) -> Option<Vec<f64>> {
+pub(super) fn levels(points: &[Vec<AnalysisPoint>]) -> Option<Vec<f64>> {
     let typical: Vec<f64> = typical_points(points)
         .iter()
         .map(|p| p.dev * p.dev)

@@ -11,6 +11,7 @@
 pub mod compare;
 pub mod coverage;
 pub mod fit;
+mod levels;
 pub mod play;
 pub mod terms_fit;
 
@@ -182,12 +183,19 @@ impl NoiseTerms {
 
     /// These terms scaled by `q` in Allan variance (every level by `√q`).
     pub fn scaled(&self, q: f64) -> NoiseTerms {
-        let mut t = Self::from_avar_coefficients(self.avar_coefficients().map(|c| c * q.max(0.0)));
+        self.by_term_factors(&[q; 5])
+    }
+
+    /// These terms scaled term by term in Allan variance: `f` holds the factors of the quantisation, white,
+    /// flicker (with every Gauss–Markov term), random-walk and ramp terms (negative ones count as 0).
+    pub fn by_term_factors(&self, f: &[f64; 5]) -> NoiseTerms {
+        let c = self.avar_coefficients();
+        let mut t = Self::from_avar_coefficients([0, 1, 2, 3, 4].map(|k| c[k] * f[k].max(0.0)));
         t.gauss_markov = self
             .gauss_markov
             .iter()
             .map(|g| GaussMarkov {
-                sigma: g.sigma * q.max(0.0).sqrt(),
+                sigma: g.sigma * f[2].max(0.0).sqrt(),
                 tau_s: g.tau_s,
             })
             .collect();
