@@ -610,10 +610,10 @@ pub(super) fn levels(points: &[Vec<AnalysisPoint>]) -> Option<Vec<f64>> {
 /// The curve the typical terms are fitted to: the sensors' mean Allan variance, less the mean of the drifts
 /// `drift` (Allan-variance coefficients, already divided by the sensor count) the diagnosis gave single sensors,
 /// divided by their mean variance factor `q̄` (1 without factors), each point weighted by the inverse variance of
-/// the mean (its Satterthwaite EDF, [`super::coverage::pooled`]), at the τ every sensor has. With each sensor's own terms `qᵢ·T`, the model's mean
-/// sensor is then `q̄·T`: the fit of the mean, which the record's cluster and the coverage see. (The per-τ median
-/// it replaces falls below the mean where the parts' bumps and lines lie at different τ: on the MIMU4444 gyros
-/// the terms were 10–30 % off the record's mean there.)
+/// the mean (its Satterthwaite EDF, [`super::coverage::pooled`]), at the τ every sensor has. With each sensor's own
+/// terms `qᵢ·T`, the model's mean sensor is then `q̄·T`: the fit of the mean, which the record's cluster and the
+/// coverage see. (The per-τ median it replaces falls below the mean where the parts' bumps and lines lie at
+/// different τ: on the MIMU4444 gyros the terms were 10–30 % off the record's mean there.)
 fn mean_curve(
     points: &[Vec<AnalysisPoint>],
     level: Option<&[f64]>,

@@ -8,9 +8,10 @@
 //! octave points with a pull toward `qᵢ` worth ν₀ degrees of freedom (a pseudo-observation `fₖ = qᵢ`, relative
 //! weight ν₀/2), and ν₀ — ∞ (the one factor), 32, 4 or 0 — is chosen per sensor on the record's own halves: fitted
 //! on one half, scored on the other (`Σ ν/2·ln²(measured/model)`), both ways, the one factor kept unless another
-//! scores lower by the 95th percentile of a χ² with the added parameters' degrees of freedom ([`gain_min`]); the chosen factors are then refitted on the whole record. (Rescaling each group's factors to sum to
-//! `Σ qᵢ`, to keep the model's mean sensor at `q̄·T`, was tried: the white and quantisation groups trade off, and on
-//! the MIMU4444 excerpt's gyro y it made every quiet sensor 20 % too loud in deviation; left out.)
+//! scores lower by the 95th percentile of a χ² with the added parameters' degrees of freedom ([`gain_min`]); the
+//! chosen factors are then refitted on the whole record. (Rescaling each group's factors to sum to `Σ qᵢ`, to keep
+//! the model's mean sensor at `q̄·T`, was tried: the white and quantisation groups trade off, and on the MIMU4444
+//! excerpt's gyro y it made every quiet sensor 20 % too loud in deviation; left out.)
 
 use super::NoiseTerms;
 use super::terms_fit::Obs;
