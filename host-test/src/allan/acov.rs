@@ -162,10 +162,6 @@ impl AllanCov {
 /// 32 KiB, the L1 data cache.
 const CHUNK: usize = 256;
 
-/// `c[i·n + j] += Σ_k d[k·n + i]·d[k·n + j]` for `j ≥ i` (the upper triangle; the rest is left as it is), each sum
-/// in increasing k, one product added at a time: the bits of the plain loop over k then i then j. By tiles of 4 × 4
-/// entries held in registers over all k (four independent chains of additions, compiled for AVX2 too): the plain
-/// loop reloaded and stored every entry at every k, ≈ 1.3 ns per product.
 /// `f(k0, k1)` for the chunks `k0..k1` of `0..terms`, in order.
 fn for_chunks(terms: usize, mut f: impl FnMut(usize, usize)) {
     let mut k0 = 0;
@@ -176,6 +172,10 @@ fn for_chunks(terms: usize, mut f: impl FnMut(usize, usize)) {
     }
 }
 
+/// `c[i·n + j] += Σ_k d[k·n + i]·d[k·n + j]` for `j ≥ i` (the upper triangle; the rest is left as it is), each sum
+/// in increasing k, one product added at a time: the bits of the plain loop over k then i then j. By tiles of 4 × 4
+/// entries held in registers over all k (four independent chains of additions, compiled for AVX2 too): the plain
+/// loop reloaded and stored every entry at every k, ≈ 1.3 ns per product.
 #[multiversion::multiversion(targets("x86_64+avx2"))]
 fn add_products(d: &[f64], n: usize, c: &mut [f64]) {
     const T: usize = 4;

@@ -579,17 +579,15 @@ fn report_axis(
             sigma_ln: taus.iter().map(|r| 1.0 / (2.0 * r.edf).sqrt()).collect(),
         },
     });
+    // The level effect (at most one is chosen): its factors, and its levels that vary with τ when it has them.
+    let level = refs.iter().rev().find(|c| c.level.is_some());
     out.fitted.push(AxisFit {
         kind: w.kind,
         axis: w.axis,
         groups: w.groups.clone(),
         effects: refs.iter().map(|c| c.kind).collect(),
-        level: refs.iter().rev().find_map(|c| c.level.clone()),
-        level_terms: refs
-            .iter()
-            .rev()
-            .find(|c| c.level.is_some())
-            .and_then(|c| c.level_terms.clone()),
+        level: level.and_then(|c| c.level.clone()),
+        level_terms: level.and_then(|c| c.level_terms.clone()),
         cross: refs
             .iter()
             .flat_map(|c| c.cross.iter().map(move |x| (c.kind, x.clone())))

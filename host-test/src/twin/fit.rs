@@ -184,14 +184,13 @@ fn fit_axis(
         .filter(|q| q.len() == ns)
         .and_then(|_| levels(&whole_points));
     // One sensor's drift (`sensor_drift`) is added to that sensor's own terms: out of the mean T is fitted to.
+    let drifts = own_drifts(af, ns);
     let mut drift = [0.0; 5];
-    for (_, c) in &af.cross {
-        if let Cross::Own { part, .. } = c {
-            drift
-                .iter_mut()
-                .zip(part.0)
-                .for_each(|(a, b)| *a += b.max(0.0) / ns as f64);
-        }
+    for d in drifts.iter().flatten() {
+        drift
+            .iter_mut()
+            .zip(d)
+            .for_each(|(a, b)| *a += b / ns as f64);
     }
     let curve = |p: &[Vec<AnalysisPoint>]| mean_curve(p, level.as_deref(), &drift, band);
     let whole = curve(&whole_points);
@@ -204,6 +203,7 @@ fn fit_axis(
     let factors = level_factors(
         af,
         level.as_deref(),
+        &drifts,
         &whole_points,
         halves_points.as_ref(),
         &levels::Typical {
@@ -212,7 +212,7 @@ fn fit_axis(
             band,
         },
     );
-    let own = own_terms(af, factors.as_deref(), &typical, ns);
+    let own = own_terms(factors.as_deref(), &drifts, &typical, ns);
     let coverage = super::coverage::coverage(&whole_points, &own, tau0, band);
     let mut shared = shared_processes(af, &cleaned, &own, &spec, an);
     shared.extend(det.shared_sines.into_iter().map(|p| (p, Vec::new())));
@@ -419,20 +419,14 @@ fn members_mean(series: &[Vec<f64>], members: &[usize]) -> Vec<f64> {
 fn level_factors(
     af: &AxisFit,
     level: Option<&[f64]>,
+    drifts: &[Option<[f64; 5]>],
     whole: &[Vec<AnalysisPoint>],
     halves: Option<&[Vec<Vec<AnalysisPoint>>; 2]>,
     typical: &levels::Typical,
 ) -> Option<Vec<levels::Factors>> {
     let q = level?;
     let varying = af.level_terms.as_ref().and_then(|_| {
-        let mut drift = vec![[0.0; 5]; q.len()];
-        for (_, c) in &af.cross {
-            if let Cross::Own { sensor, part } = c
-                && let Some(d) = drift.get_mut(*sensor)
-            {
-                d.iter_mut().zip(part.0).for_each(|(a, b)| *a += b.max(0.0));
-            }
-        }
+        let drift: Vec<[f64; 5]> = drifts.iter().map(|d| d.unwrap_or([0.0; 5])).collect();
         let sensors = levels::Sensors {
             whole,
             halves,
@@ -443,11 +437,27 @@ fn level_factors(
     Some(varying.unwrap_or_else(|| q.iter().map(|&q| [q; 5]).collect()))
 }
 
+/// Each sensor's drift (`sensor_drift`: the Allan-variance coefficients of the `Cross::Own` parts the diagnosis gave
+/// it, negative ones as 0), `None` for a sensor without one.
+fn own_drifts(af: &AxisFit, ns: usize) -> Vec<Option<[f64; 5]>> {
+    let mut out = vec![None; ns];
+    for (_, c) in &af.cross {
+        if let Cross::Own { sensor, part } = c
+            && let Some(d) = out.get_mut(*sensor)
+        {
+            let d = d.get_or_insert([0.0; 5]);
+            d.iter_mut().zip(part.0).for_each(|(a, b)| *a += b.max(0.0));
+        }
+    }
+    out
+}
+
 /// Each sensor's own terms: the typical ones, scaled term by term by `factors` ([`level_factors`]) where the
-/// diagnosis found unequal sensors, plus the slow process the diagnosis found on one sensor (`sensor_drift`).
+/// diagnosis found unequal sensors, plus the slow process the diagnosis found on one sensor (`drifts`,
+/// [`own_drifts`]).
 fn own_terms(
-    af: &AxisFit,
     factors: Option<&[levels::Factors]>,
+    drifts: &[Option<[f64; 5]>],
     typical: &NoiseTerms,
     ns: usize,
 ) -> Vec<NoiseTerms> {
@@ -455,12 +465,10 @@ fn own_terms(
         Some(f) if f.len() == ns => f.iter().map(|f| typical.by_term_factors(f)).collect(),
         _ => vec![typical.clone(); ns],
     };
-    for (_, c) in &af.cross {
-        if let Cross::Own { sensor, part } = c
-            && let Some(o) = own.get_mut(*sensor)
-        {
+    for (o, d) in own.iter_mut().zip(drifts) {
+        if let Some(d) = d {
             let mut c = o.avar_coefficients();
-            c.iter_mut().zip(part.0).for_each(|(a, b)| *a += b.max(0.0));
+            c.iter_mut().zip(d).for_each(|(a, b)| *a += b);
             *o = NoiseTerms {
                 gauss_markov: std::mem::take(&mut o.gauss_markov),
                 ..NoiseTerms::from_avar_coefficients(c)
