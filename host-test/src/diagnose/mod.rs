@@ -10,10 +10,11 @@
 //! 2. **P0**, the √N model: N independent copies of the typical sensor, `V(τ)/N` for equal weights, with `V` taken
 //!    from the half being predicted (the √N model has no other parameter).
 //! 3. **Candidates**, all fitted on the first half only (`model`): per-sensor level factors (`unequal_noise`,
-//!    `outlier_sensor`; one factor per sensor, and again as levels that vary with τ, `model::TermLevels`); a process shared by all sensors, split into its fast terms (`common_mode`: quantisation,
-//!    white, flicker) and its slow terms (`common_mode_drift`: random walk, ramp), each as a share of the typical
-//!    variance; `block_common_mode` over blocks found by clustering the Allan correlation matrix; `thermal`
-//!    (coefficients on the measured temperature) when `temp_c` exists.
+//!    `outlier_sensor`; one factor per sensor, and again as levels that vary with τ, `model::TermLevels`); a
+//!    process shared by all sensors, split into its fast terms (`common_mode`: quantisation, white, flicker) and its
+//!    slow terms (`common_mode_drift`: random walk, ramp), each as a share of the typical variance;
+//!    `block_common_mode` over blocks found by clustering the Allan correlation matrix; `thermal` (coefficients on
+//!    the measured temperature) when `temp_c` exists.
 //! 4. **Selection on the second half**: the gap of each τ point is turned into a z-score through the χ²
 //!    distribution of the measured variance and the prediction's own scatter; while `Σ z²` over the axis exceeds
 //!    the χ² quantile at `p_false`, the candidate that lowers `Σ z²` most is added if it removes at least
