@@ -6,11 +6,13 @@
 //! With unequal parts the cluster truly departs from √N by its levels, so a level effect (`unequal_noise`,
 //! `outlier_sensor`) is a right answer on those records; every other kind, a level effect on a record of equal
 //! parts, and a shared disturbance are false alarms. Target (issue 40): ≤ 1 effect named in 100 clean records.
-//! Measured (seeds 7,500,000–7,500,199): 0 in 200. The test asserts ≤ 2 in 100 (4 of 200). These seeds are a lucky
-//! draw, and the target is not met: the same sweep on 800 other seeds (5,000–5,399, 100,000–100,199,
-//! 7,500,200–7,500,399) names 13 in 800 (1.6 in 100: `common_mode` 4, `unexplained` 4, `common_mode_drift` 3,
-//! `bias_step` 2); 24 before the level effect was also offered with levels that vary with τ, 69 before the step scan
-//! counted every position (docs/diagnose.md). Other seeds:
+//! Measured (seeds 7,500,000–7,500,199): 0 in 200; the test asserts the target, ≤ 2 of 200. On 800 fresh seeds
+//! (9,000,000–9,000,799, never looked at before the measurement): **3 in 800** (0.38 in 100: `bias_step`,
+//! `unexplained`, one shared disturbance), where the diagnosis before a shared process needed the held-out cross
+//! covariance named 8 (`common_mode` 3, `unexplained` 2, `common_mode_drift`, `bias_step`, disturbance). On the 800
+//! seeds the change was studied on (5,000–5,399, 100,000–100,199, 7,500,200–7,500,399): 13 → 4 (`unexplained` 3,
+//! `bias_step` 1); 24 before the level effect was also offered with levels that vary with τ, 69 before the step
+//! scan counted every position (docs/diagnose.md). Other seeds:
 //! `DIAGNOSE_NULL_SEEDS=5000..5400 cargo test --release -p host-test --test diagnose_false_alarms -- --nocapture`.
 //! Gauss–Markov bumps are left out of this null (`clean_records_with_gauss_markov_bumps`, ignored, figures there).
 //!
@@ -180,13 +182,13 @@ fn null_seeds() -> Vec<u64> {
 }
 
 #[test]
-fn clean_records_of_the_null_name_at_most_two_effects_in_100() {
+fn clean_records_of_the_null_name_at_most_one_effect_in_100() {
     let seeds = null_seeds();
     let start = std::time::Instant::now();
     let results = sweep(&seeds, false);
     let found = false_alarms("null", &results, start.elapsed().as_secs_f64());
     assert!(
-        found.len() * 100 <= 2 * results.len(),
+        found.len() * 100 <= results.len(),
         "{} false alarms in {} clean records: {found:?}",
         found.len(),
         results.len()
@@ -194,13 +196,14 @@ fn clean_records_of_the_null_name_at_most_two_effects_in_100() {
 }
 
 /// The same null with a first-order Gauss–Markov bump on every sensor: measured, not met (issue 40, item 1). On
-/// seeds 7,500,200–7,500,249: 9 effects in 50 records (disturbances 4, `common_mode` 3, `unexplained` 2). Before the
+/// seeds 7,500,200–7,500,249: 6 effects in 50 records (shared disturbances 4, `unexplained` 2); 9 before a shared
+/// process needed the held-out cross covariance (`common_mode` 3 more). Before the
 /// level effect was also offered with levels that vary with τ, 51 (`unexplained` 36, `common_mode` 11, disturbances
 /// 4): the parts differ in white noise but share the bump's level, which one factor per sensor over all τ cannot
 /// follow (on tuning seed 5046 it explained a quarter of the 1.5–2× excess at τ₀–4τ₀).
 /// `cargo test -p host-test --test diagnose_false_alarms -- --ignored` runs it.
 #[test]
-#[ignore = "not met: 9 effects in 50 records (shared disturbances 4, common_mode 3, unexplained 2)"]
+#[ignore = "not met: 6 effects in 50 records (shared disturbances 4, unexplained 2)"]
 fn clean_records_with_gauss_markov_bumps() {
     let seeds: Vec<u64> = (FIRST_SEED + RECORDS..FIRST_SEED + RECORDS + 50).collect();
     let start = std::time::Instant::now();
@@ -212,4 +215,53 @@ fn clean_records_with_gauss_markov_bumps() {
         found.len(),
         results.len()
     );
+}
+
+/// The kinds that name a process shared by sensors.
+const SHARED_KINDS: [&str; 3] = ["common_mode", "common_mode_drift", "block_common_mode"];
+
+/// The effects named on the null record of `seed` (kinds and axes) with `opts`.
+fn named(base: &SimConfig, seed: u64, opts: &Options) -> Vec<(String, String)> {
+    let n = null(base, seed, false);
+    let rec = clip(recording(n.cfg).unwrap(), n.groups);
+    let r = diagnose(&rec, opts).unwrap();
+    r.effects
+        .iter()
+        .map(|e| (e.kind.clone(), format!("{} {}", e.sensor, e.axes)))
+        .collect()
+}
+
+/// Null records on which a shared process was named by chance (2026-11-30, seeds of the 800 swept above): on
+/// unequal parts or through a chance excursion of the gap, a `common_mode` or `common_mode_drift` lowered the
+/// held-out `Σ z²` although the held-out half's own cross covariance showed nothing (independence p 0.43–0.92).
+/// A shared process is now named only when that cross covariance confirms it (`Options::p_cross`); with the
+/// confirmation off (`p_cross` 1) the same records name the shared processes again, so the test can fail. Seed
+/// 5356 also named an `unexplained` accel y whose held-out half was clean (largest z 1.09): an unexplained gap is
+/// now named only where the held-out half shows it too.
+#[test]
+fn a_shared_process_is_named_only_where_the_held_out_cross_covariance_shows_it() {
+    let base = seed_config(FIRST_SEED).unwrap();
+    let seeds = [5310, 5356, 100_105, 7_500_250, 7_500_399];
+    let off = Options {
+        p_cross: 1.0,
+        ..Options::default()
+    };
+    let shared = |e: &[(String, String)]| e.iter().any(|(k, _)| SHARED_KINDS.contains(&k.as_str()));
+    let without: Vec<u64> = seeds
+        .iter()
+        .copied()
+        .filter(|&s| shared(&named(&base, s, &off)))
+        .collect();
+    assert!(
+        without.len() >= 4,
+        "without the confirmation, shared processes on {without:?}"
+    );
+    for s in seeds {
+        let e = named(&base, s, &Options::default());
+        assert!(!shared(&e), "seed {s}: {e:?}");
+        assert!(
+            s != 5356 || e.iter().all(|(k, _)| k != "unexplained"),
+            "{e:?}"
+        );
+    }
 }

@@ -2,7 +2,7 @@
 
 use super::analyse::{Acts, THERMAL_PREFERENCE};
 use super::candidates::{Candidate, build};
-use super::model::{Model, Terms};
+use super::model::{Cross, Model, Terms};
 use super::prediction::{chi2, evaluate, octave_corr, significant};
 use super::singles::{Half, region_name};
 use super::types::Options;
@@ -104,6 +104,7 @@ pub(super) fn select(
                 || refs.iter().any(|r| r.kind == c.kind)
                 || allowed.is_some_and(|a| !a.contains(&c.kind))
                 || (c.level.is_some() && refs.iter().any(|r| r.level.is_some()))
+                || !cross_confirmed(c, &refs, hh, wts, opts)
             {
                 continue;
             }
@@ -154,7 +155,7 @@ pub(super) fn sibling(st: &AxisState, kinds: &[&str], opts: &Options) -> Option<
         .unwrap_or(f64::INFINITY);
     let mut best: Option<(f64, usize)> = None;
     for (i, c) in st.cands.iter().enumerate() {
-        if !kinds.contains(&c.kind) {
+        if !kinds.contains(&c.kind) || !cross_confirmed(c, &[], &st.hh, &st.wts, opts) {
             continue;
         }
         let with = evaluate(&build(ns, &[c]), &st.hh, &st.wts, opts.model_tolerance);
@@ -176,4 +177,57 @@ pub(super) fn sibling(st: &AxisState, kinds: &[&str], opts: &Options) -> Option<
         }
     }
     best.map(|(_, i)| i)
+}
+
+/// Whether the held-out half's own cross covariance confirms a candidate that adds a shared process (`Cross::Shared`:
+/// `common_mode`, `common_mode_drift`, `block_common_mode`; any other candidate passes). The gap test compares the
+/// cluster with a prediction from the sensors' first-half models, so on unequal parts, or where the prediction
+/// scatters, a shared process can lower the held-out `Σ z²` without the sensors being correlated at all. The
+/// cross-covariance z of each held-out point ([`Half::cross_z`], the cluster against the same half's
+/// `Σ w_i² σ̂_i²`, no prediction involved) is projected on what the candidate predicts for it over the model already
+/// chosen (`refs`): `T = Σ r_k s_k / √(sᵀRs)`, `r` the measured z less the chosen model's, `s` the candidate's
+/// predicted shift, `R` the octave points' null correlation. Under independence `T` is N(0, 1); the candidate is
+/// kept at `T > z(1 − p_cross)`.
+pub(super) fn cross_confirmed(
+    c: &Candidate,
+    refs: &[&Candidate],
+    h: &Half,
+    w: &[f64],
+    opts: &Options,
+) -> bool {
+    if !c.cross.iter().any(|x| matches!(x, Cross::Shared { .. })) {
+        return true;
+    }
+    let ns = w.len();
+    let mut with = refs.to_vec();
+    with.push(c);
+    let full = build(ns, &with);
+    let before = build(ns, refs);
+    let alone = Model {
+        cross: Vec::new(),
+        ..full.clone()
+    };
+    let mut resid = Vec::with_capacity(h.len());
+    let mut shift = Vec::with_capacity(h.len());
+    for k in 0..h.len() {
+        let (t, v, th) = (h.tau_s[k], h.typical[k], h.temp[k]);
+        let indep = alone.avar(w, t, v, th);
+        if indep.is_nan() || indep <= 0.0 {
+            continue;
+        }
+        let z0 = h.cross_z(w, k, before.avar(w, t, v, th) / indep);
+        resid.push(h.measured_cross_z(w, k) - z0);
+        shift.push(h.cross_z(w, k, full.avar(w, t, v, th) / indep) - z0);
+    }
+    let num: f64 = resid.iter().zip(&shift).map(|(r, s)| r * s).sum();
+    let mut var = 0.0;
+    for (a, sa) in shift.iter().enumerate() {
+        for (b, sb) in shift.iter().enumerate() {
+            var += sa * sb * octave_corr(a.abs_diff(b));
+        }
+    }
+    let z_crit = Normal::new(0.0, 1.0)
+        .map(|n| n.inverse_cdf(1.0 - opts.p_cross))
+        .unwrap_or(f64::INFINITY);
+    var > 0.0 && num / var.sqrt() > z_crit
 }

@@ -1,6 +1,7 @@
 //! Per half and axis: the single sensors' and the cluster's Allan variances, EDFs and noise types, and the small statistics they use.
 
 use super::model::Terms;
+use crate::allan::chi2_z;
 use crate::allan::median_to_mean;
 use crate::allan::noisefit;
 use crate::allan::noisefit::NoiseFit;
@@ -209,6 +210,37 @@ impl Half {
 
     pub(super) fn len(&self) -> usize {
         self.tau_s.len()
+    }
+
+    /// `Σ w_i² σ̂_i²` at point `k`: the cluster variance this half's own sensors give if they are independent.
+    pub(super) fn independent(&self, w: &[f64], k: usize) -> f64 {
+        self.singles
+            .iter()
+            .zip(w)
+            .map(|(s, wi)| wi * wi * s.get(k).copied().unwrap_or(0.0))
+            .sum()
+    }
+
+    /// The z-score of a cluster variance `ratio` times [`Half::independent`] at point `k` against independence
+    /// (no prediction involved): the χ² z of the ratio at the cluster's EDF, scaled down by the scatter
+    /// `Σ w_i² σ̂_i²` adds (relative variance ≈ `(2/ν_s)·Σw⁴/(Σw²)²`). At the measured ratio this is the report's
+    /// cross-covariance z; at a model's ratio, what the model predicts for it.
+    pub(super) fn cross_z(&self, w: &[f64], k: usize, ratio: f64) -> f64 {
+        let sw2: f64 = w.iter().map(|x| x * x).sum();
+        let sw4: f64 = w.iter().map(|x| x.powi(4)).sum();
+        let (Some(&nu), Some(&nu_s)) = (self.edf.get(k), self.single_edf.get(k)) else {
+            return 0.0;
+        };
+        let s_m = (2.0 / nu).sqrt();
+        let s_i = (2.0 / nu_s * sw4).sqrt() / sw2.max(1e-300);
+        chi2_z(ratio, nu) * s_m / (s_m * s_m + s_i * s_i).sqrt()
+    }
+
+    /// [`Half::cross_z`] at the measured ratio, the cluster's variance over [`Half::independent`].
+    pub(super) fn measured_cross_z(&self, w: &[f64], k: usize) -> f64 {
+        let indep = self.independent(w, k);
+        let cluster = self.cluster.get(k).copied().unwrap_or(0.0);
+        self.cross_z(w, k, cluster / indep.max(1e-300))
     }
 }
 

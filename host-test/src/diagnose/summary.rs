@@ -6,7 +6,6 @@ use super::model::{Model, Terms};
 use super::prediction::PointGap;
 use super::singles::{Half, octave, region_name, weighted_mean};
 use super::types::{Effect, Gain, Groups, Independence, Region, TauRow};
-use crate::allan::chi2_z;
 use crate::allan::{AnalysisPoint, Analyzer};
 use crate::formats::csv::{AXIS_NAMES, SensorKind};
 use crate::stats::median;
@@ -23,17 +22,12 @@ pub(super) fn tau_rows(
     after: &[PointGap],
 ) -> (Vec<TauRow>, Independence) {
     let sw2: f64 = w.iter().map(|x| x * x).sum();
-    let sw4: f64 = w.iter().map(|x| x.powi(4)).sum();
     let pair_w = w.iter().sum::<f64>().powi(2) - sw2;
     let mut rows = Vec::new();
     for k in 0..h.len() {
         let (t, v, th) = (h.tau_s[k], h.typical[k], h.temp[k]);
-        let indep: f64 = h.singles.iter().zip(w).map(|(s, wi)| wi * wi * s[k]).sum();
-        let ratio = h.cluster[k] / indep.max(1e-300);
-        // Σ w_i² σ̂_i² has relative variance ≈ (2/ν_s)·Σw⁴/(Σw²)².
-        let s_m = (2.0 / h.edf[k]).sqrt();
-        let s_i = (2.0 / h.single_edf[k] * sw4).sqrt() / sw2.max(1e-300);
-        let cross_z = chi2_z(ratio, h.edf[k]) * s_m / (s_m * s_m + s_i * s_i).sqrt();
+        let indep = h.independent(w, k);
+        let cross_z = h.measured_cross_z(w, k);
         let dev = h.cluster[k].sqrt();
         let (dev_lo, dev_hi) =
             crate::allan::confidence_interval(dev, h.edf[k], crate::allan::ONE_SIGMA_CI)

@@ -39,6 +39,9 @@ pub struct Options {
     /// False-alarm probability of the second test of an axis without an effect, for the kinds found on the other
     /// axes of its sensor.
     pub p_sibling: f64,
+    /// False-alarm probability (one-sided) of the confirmation a shared process needs from the held-out half's own
+    /// cross covariance before it is named (`selection::cross_confirmed`).
+    pub p_cross: f64,
 }
 
 impl Default for Options {
@@ -52,6 +55,7 @@ impl Default for Options {
             p_false: 2e-3,
             merge_z: 8.0,
             p_sibling: 0.02,
+            p_cross: 0.01,
         }
     }
 }
