@@ -48,7 +48,7 @@ mod overlap;
 pub mod recording;
 mod taus;
 
-pub use analysis::{AnalysisPoint, Analyzer, Options, analyze};
+pub use analysis::{AnalysisPoint, Analyzer, Halves, Options, analyze};
 pub use ci::{ONE_SIGMA_CI, chi2_z, confidence_interval, median_to_mean};
 pub use deviation::{DevKind, DevPoint, Phase, adev, deviation, mdev, oadev};
 pub use edf::{edf_for_kind, edf_greenhall};

@@ -8,7 +8,7 @@ use super::prediction::{
 };
 use super::selection::{AxisState, acts, axis_label, select, sibling};
 use super::sensors::confirmed;
-use super::singles::{Half, Shape, octave, octave_devs, terms_of};
+use super::singles::{Half, Shape, octave, octave_devs, octave_halves, terms_of};
 use super::summary::{gains, merge_effects, regions, tau_rows};
 use super::types::{
     AxisCurves, AxisFit, AxisReport, DiagnoseError, Effect, Groups, HeldOut, MIN_SAMPLES, Measured,
@@ -17,7 +17,7 @@ use super::types::{
 use super::{periodic, quiet, steps, unexplained};
 use crate::allan::noisefit;
 use crate::allan::noisefit::NoiseFit;
-use crate::allan::{AnalysisPoint, Analyzer};
+use crate::allan::{AnalysisPoint, Analyzer, Halves};
 use crate::formats::csv::{AXIS_NAMES, Recording, SensorKind};
 use crate::stats::{median, rms};
 use crate::twin::terms_fit;
@@ -184,7 +184,8 @@ fn weights(rule: WeightRule, singles: &[NoiseFit]) -> Vec<f64> {
     }
 }
 
-/// The per-τ median of the sensors' deviations (the typical sensor's curve).
+/// The per-τ median of the sensors' deviations (the typical sensor's curve); τ, block count, noise type, EDF and
+/// interval are the first sensor's (the interval is not recomputed about the median).
 fn median_curve(pts: &[Vec<AnalysisPoint>]) -> Vec<AnalysisPoint> {
     (0..pts.iter().map(Vec::len).min().unwrap_or(0))
         .map(|k| {
@@ -231,11 +232,17 @@ fn typical_shape_fit(
     tau0: f64,
 ) -> (crate::twin::NoiseTerms, bool) {
     let q = first.iter().map(|s| s.len()).min().unwrap_or(0) / 2;
+    // The median curve takes its τ, EDF and noise types from the first sensor's points and only the deviations
+    // from the others: those are measured without the noise identification (the same values).
     let quarter = |an: &mut Analyzer, r: std::ops::Range<usize>| {
         let pts: Vec<Vec<AnalysisPoint>> = first
             .iter()
             .filter_map(|s| s.get(r.clone()))
-            .map(|s| octave(an, s, tau0))
+            .enumerate()
+            .map(|(i, s)| match i {
+                0 => octave(an, s, tau0),
+                _ => octave_devs(an, s, tau0),
+            })
             .collect();
         terms_fit::Obs::of(&median_curve(&pts))
     };
@@ -302,12 +309,27 @@ fn analyse_axis(
     let first: Vec<&[f64]> = w.series.iter().map(|s| &s[..half]).collect();
     let second: Vec<&[f64]> = w.series.iter().map(|s| &s[half..]).collect();
 
-    // Single sensors of both halves, the typical sensor of the first.
-    let pts_first: Vec<Vec<AnalysisPoint>> = first.iter().map(|s| octave(an, s, tau0)).collect();
-    let pts_held: Vec<Vec<AnalysisPoint>> =
-        second.iter().map(|s| octave_devs(an, s, tau0)).collect();
-    let pts_whole: Vec<Vec<AnalysisPoint>> =
-        w.series.iter().map(|s| octave_devs(an, s, tau0)).collect();
+    // Single sensors of both halves and of the whole (the whole's sums from the halves'), the typical sensor of the
+    // first half.
+    let (mut pts_first, mut pts_held, mut pts_whole) = (Vec::new(), Vec::new(), Vec::new());
+    for ((s, f), h) in w.series.iter().zip(&first).zip(&second) {
+        let Halves {
+            first: f,
+            second: h,
+            whole: a,
+        } = match s.len() / 2 == half {
+            true => octave_halves(an, s, tau0),
+            // A sensor of another length than the first: its parts as they are cut above, one pass each.
+            false => Halves {
+                first: octave(an, f, tau0),
+                second: octave_devs(an, h, tau0),
+                whole: octave_devs(an, s, tau0),
+            },
+        };
+        pts_first.push(f);
+        pts_held.push(h);
+        pts_whole.push(a);
+    }
     let singles: Vec<NoiseFit> = pts_first.iter().map(|p| noisefit::fit(p)).collect();
     // The typical sensor of the first half (the per-τ median of the sensors' deviations) and its baseline noise
     // model: the four terms, with its single-pole bandwidth when the curve shows one and the roll-off holds on the
