@@ -8,7 +8,7 @@ use super::prediction::{
 };
 use super::selection::{AxisState, acts, axis_label, select, sibling};
 use super::sensors::confirmed;
-use super::singles::{Half, Shape, octave, octave_devs, octave_halves, terms_of};
+use super::singles::{Half, Shape, octave, octave_devs, octave_halves, terms_of, weighted_mean};
 use super::summary::{gains, merge_effects, regions, tau_rows};
 use super::types::{
     AxisCurves, AxisFit, AxisReport, DiagnoseError, Effect, Groups, HeldOut, MIN_SAMPLES, Measured,
@@ -348,10 +348,14 @@ fn analyse_axis(
     let shape = typical_shape(fitted, typ_terms, tau0);
 
     let mb = opts.min_blocks;
+    // The cluster means of the halves; the whole's is the two end to end (each sample's weighted sum is computed
+    // alike, so it is the same, bit for bit, as the whole's own).
+    let mean_first = weighted_mean(&first, &wts);
+    let mean_held = weighted_mean(&second, &wts);
     let hf = Half::measure(
         an,
         &first,
-        &wts,
+        &mean_first,
         tau0,
         mb,
         &shape,
@@ -361,7 +365,7 @@ fn analyse_axis(
     let hh = Half::measure(
         an,
         &second,
-        &wts,
+        &mean_held,
         tau0,
         mb,
         &shape,
@@ -384,7 +388,17 @@ fn analyse_axis(
         opts,
         &own,
     );
-    let hw = Half::measure(an, &w.series, &wts, tau0, mb, &shape, &pts_whole, temp);
+    let mean_whole = [mean_first, mean_held].concat();
+    let hw = Half::measure(
+        an,
+        &w.series,
+        &mean_whole,
+        tau0,
+        mb,
+        &shape,
+        &pts_whole,
+        temp,
+    );
     let thr = scan_threshold(hw.len(), opts.p_false);
     let mut chosen = select(&cands, &hw, &hh, &wts, opts, thr, None);
     // Effects that together remove less than half of the held-out excess are not named: the gap is `unexplained`.

@@ -153,12 +153,13 @@ pub(super) struct Half {
 }
 
 impl Half {
-    /// Measures one half: `series` the sensors, `w` the weights, `typ` the typical sensor's shape (for noise types).
+    /// Measures one half: `series` the sensors, `mean` their cluster mean ([`weighted_mean`] with the weights),
+    /// `typ` the typical sensor's shape (for noise types).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn measure(
         an: &mut Analyzer,
         series: &[&[f64]],
-        w: &[f64],
+        mean: &[f64],
         tau0: f64,
         min_blocks: usize,
         typ: &Shape,
@@ -166,8 +167,7 @@ impl Half {
         temp: Option<&[f64]>,
     ) -> Half {
         let n = series.iter().map(|s| s.len()).min().unwrap_or(0);
-        let mean = weighted_mean(series, w);
-        let cl = octave_devs(an, &mean, tau0);
+        let cl = octave_devs(an, mean, tau0);
         let temp_pts = temp.map(|t| octave_devs(an, t, tau0)).unwrap_or_default();
         let ns = series.len();
         let mut h = Half {
