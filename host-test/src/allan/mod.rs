@@ -41,7 +41,7 @@ mod analysis;
 mod ci;
 mod deviation;
 mod edf;
-mod lanes;
+pub(crate) mod lanes;
 mod noise;
 pub mod noisefit;
 mod overlap;
