@@ -220,11 +220,7 @@ impl Phase {
         valid
             .iter()
             .zip(sums)
-            .map(|(&m, s)| {
-                let n = kind.n_terms(self.n_samples(), m);
-                let var = normalised_avar(s, n, m, self.tau0_s);
-                (m > 0 && var.is_finite()).then(|| self.point(m, var, n))
-            })
+            .map(|(&m, s)| oadev_point(s, m, self.n_samples(), self.tau0_s))
             .collect()
     }
 
@@ -284,6 +280,23 @@ fn avar(x: &[f64], m: usize, tau0_s: f64, overlapping: bool) -> (f64, usize) {
         (s, n)
     };
     (normalised_avar(s, n, m, tau0_s), n)
+}
+
+/// The overlapping deviation at factor `m` of `n_samples` frequency samples (interval `tau0_s`) whose squared second
+/// differences of phase sum to `s`, as [`Phase::deviations`] gives it (`None` for fewer than two terms or a
+/// non-finite variance).
+pub(super) fn oadev_point(s: f64, m: usize, n_samples: usize, tau0_s: f64) -> Option<DevPoint> {
+    let n = DevKind::Oadev.n_terms(n_samples, m);
+    if n < 2 {
+        return None;
+    }
+    let var = normalised_avar(s, n, m, tau0_s);
+    var.is_finite().then(|| DevPoint {
+        m,
+        tau_s: m as f64 * tau0_s,
+        n,
+        dev: var.sqrt(),
+    })
 }
 
 /// The Allan variance of `n` squared second differences summing to `s` at factor `m`: `s / (2 n (m τ0)²)`.

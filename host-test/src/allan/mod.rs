@@ -41,14 +41,14 @@ mod analysis;
 mod ci;
 mod deviation;
 mod edf;
-mod lanes;
+pub(crate) mod lanes;
 mod noise;
 pub mod noisefit;
 mod overlap;
 pub mod recording;
 mod taus;
 
-pub use analysis::{AnalysisPoint, Analyzer, Options, analyze};
+pub use analysis::{AnalysisPoint, Analyzer, Halves, Options, analyze};
 pub use ci::{ONE_SIGMA_CI, chi2_z, confidence_interval, median_to_mean};
 pub use deviation::{DevKind, DevPoint, Phase, adev, deviation, mdev, oadev};
 pub use edf::{edf_for_kind, edf_greenhall};

@@ -12,7 +12,7 @@
 //! is also compiled for AVX2 and chosen at run time: the same operations on wider registers (no fused multiply-add,
 //! which Rust never forms by itself), so the same bits.
 
-use super::lanes::{LANES, combine};
+use super::lanes::{self, LANES, combine};
 
 /// Phase points per block (16 KiB): a block's ≈ 20 windows (octave factors) fill about a third of the L2 cache.
 const BLOCK: usize = 2048;
@@ -49,6 +49,35 @@ pub(super) fn second_difference_sums(x: &[f64], ms: &[usize]) -> Vec<f64> {
                 tail += d * d;
             }
             combine(*lanes) + tail
+        })
+        .collect()
+}
+
+/// The terms `(x[i+2m] − 2x[i+m] + x[i])²` of a whole phase `x` that straddle the point `h` (`x[..=h]` and `x[h..]`
+/// being the phases of two consecutive parts of the series), summed at every factor of `ms`: those that neither
+/// part's own [`second_difference_sums`] holds, at `max(0, h + 1 − 2m) ≤ i < min(h, x.len() − 2m)`, at most `2m − 1`.
+/// Since a second difference does not see a straight line, the parts' phases may be integrated from their own means:
+/// in exact arithmetic the whole's sum at `m` is the first part's + the second part's + this one. A factor without
+/// such a term (`m = 0`, or `h` beyond the phase) gives 0.
+pub(super) fn straddling_sums(x: &[f64], h: usize, ms: &[usize]) -> Vec<f64> {
+    ms.iter()
+        .map(|&m| {
+            let Some(two_m) = m.checked_mul(2).filter(|_| m > 0) else {
+                return 0.0;
+            };
+            let lo = (h + 1).saturating_sub(two_m);
+            let hi = h.min(x.len().saturating_sub(two_m));
+            match (
+                x.get(lo + two_m..hi + two_m),
+                x.get(lo + m..hi + m),
+                x.get(lo..hi),
+            ) {
+                (Some(a), Some(b), Some(c)) if lo < hi => lanes::sum3(a, b, c, |a, b, c| {
+                    let d = a - 2.0 * b + c;
+                    d * d
+                }),
+                _ => 0.0,
+            }
         })
         .collect()
 }

@@ -8,7 +8,7 @@ use super::prediction::{
 };
 use super::selection::{AxisState, acts, axis_label, select, sibling};
 use super::sensors::confirmed;
-use super::singles::{Half, Shape, octave, octave_devs, terms_of};
+use super::singles::{Half, Shape, octave, octave_devs, octave_halves, terms_of, weighted_mean};
 use super::summary::{gains, merge_effects, regions, tau_rows};
 use super::types::{
     AxisCurves, AxisFit, AxisReport, DiagnoseError, Effect, Groups, HeldOut, MIN_SAMPLES, Measured,
@@ -17,7 +17,7 @@ use super::types::{
 use super::{periodic, quiet, steps, unexplained};
 use crate::allan::noisefit;
 use crate::allan::noisefit::NoiseFit;
-use crate::allan::{AnalysisPoint, Analyzer};
+use crate::allan::{AnalysisPoint, Analyzer, Halves};
 use crate::formats::csv::{AXIS_NAMES, Recording, SensorKind};
 use crate::stats::{median, rms};
 use crate::twin::terms_fit;
@@ -186,7 +186,8 @@ fn weights(rule: WeightRule, singles: &[NoiseFit]) -> Vec<f64> {
     }
 }
 
-/// The per-τ median of the sensors' deviations (the typical sensor's curve).
+/// The per-τ median of the sensors' deviations (the typical sensor's curve); τ, block count, noise type, EDF and
+/// interval are the first sensor's (the interval is not recomputed about the median).
 fn median_curve(pts: &[Vec<AnalysisPoint>]) -> Vec<AnalysisPoint> {
     (0..pts.iter().map(Vec::len).min().unwrap_or(0))
         .map(|k| {
@@ -233,11 +234,17 @@ fn typical_shape_fit(
     tau0: f64,
 ) -> (crate::twin::NoiseTerms, bool) {
     let q = first.iter().map(|s| s.len()).min().unwrap_or(0) / 2;
+    // The median curve takes its τ, EDF and noise types from the first sensor's points and only the deviations
+    // from the others: those are measured without the noise identification (the same values).
     let quarter = |an: &mut Analyzer, r: std::ops::Range<usize>| {
         let pts: Vec<Vec<AnalysisPoint>> = first
             .iter()
             .filter_map(|s| s.get(r.clone()))
-            .map(|s| octave(an, s, tau0))
+            .enumerate()
+            .map(|(i, s)| match i {
+                0 => octave(an, s, tau0),
+                _ => octave_devs(an, s, tau0),
+            })
             .collect();
         terms_fit::Obs::of(&median_curve(&pts))
     };
@@ -304,12 +311,27 @@ fn analyse_axis(
     let first: Vec<&[f64]> = w.series.iter().map(|s| &s[..half]).collect();
     let second: Vec<&[f64]> = w.series.iter().map(|s| &s[half..]).collect();
 
-    // Single sensors of both halves, the typical sensor of the first.
-    let pts_first: Vec<Vec<AnalysisPoint>> = first.iter().map(|s| octave(an, s, tau0)).collect();
-    let pts_held: Vec<Vec<AnalysisPoint>> =
-        second.iter().map(|s| octave_devs(an, s, tau0)).collect();
-    let pts_whole: Vec<Vec<AnalysisPoint>> =
-        w.series.iter().map(|s| octave_devs(an, s, tau0)).collect();
+    // Single sensors of both halves and of the whole (the whole's sums from the halves'), the typical sensor of the
+    // first half.
+    let (mut pts_first, mut pts_held, mut pts_whole) = (Vec::new(), Vec::new(), Vec::new());
+    for ((s, f), h) in w.series.iter().zip(&first).zip(&second) {
+        let Halves {
+            first: f,
+            second: h,
+            whole: a,
+        } = match s.len() / 2 == half {
+            true => octave_halves(an, s, tau0),
+            // A sensor of another length than the first: its parts as they are cut above, one pass each.
+            false => Halves {
+                first: octave(an, f, tau0),
+                second: octave_devs(an, h, tau0),
+                whole: octave_devs(an, s, tau0),
+            },
+        };
+        pts_first.push(f);
+        pts_held.push(h);
+        pts_whole.push(a);
+    }
     let singles: Vec<NoiseFit> = pts_first.iter().map(|p| noisefit::fit(p)).collect();
     // The typical sensor of the first half (the per-τ median of the sensors' deviations) and its baseline noise
     // model: the four terms, with its single-pole bandwidth when the curve shows one and the roll-off holds on the
@@ -328,10 +350,14 @@ fn analyse_axis(
     let shape = typical_shape(fitted, typ_terms, tau0);
 
     let mb = opts.min_blocks;
+    // The cluster means of the halves; the whole's is the two end to end (each sample's weighted sum is computed
+    // alike, so it is the same, bit for bit, as the whole's own).
+    let mean_first = weighted_mean(&first, &wts);
+    let mean_held = weighted_mean(&second, &wts);
     let hf = Half::measure(
         an,
         &first,
-        &wts,
+        &mean_first,
         tau0,
         mb,
         &shape,
@@ -341,7 +367,7 @@ fn analyse_axis(
     let hh = Half::measure(
         an,
         &second,
-        &wts,
+        &mean_held,
         tau0,
         mb,
         &shape,
@@ -364,7 +390,17 @@ fn analyse_axis(
         opts,
         &own,
     );
-    let hw = Half::measure(an, &w.series, &wts, tau0, mb, &shape, &pts_whole, temp);
+    let mean_whole = [mean_first, mean_held].concat();
+    let hw = Half::measure(
+        an,
+        &w.series,
+        &mean_whole,
+        tau0,
+        mb,
+        &shape,
+        &pts_whole,
+        temp,
+    );
     let thr = scan_threshold(hw.len(), opts.p_false);
     let mut chosen = select(&cands, &hw, &hh, &wts, opts, thr, None);
     // Effects that together remove less than half of the held-out excess are not named: the gap is `unexplained`.

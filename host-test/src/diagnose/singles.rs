@@ -6,7 +6,7 @@ use crate::allan::median_to_mean;
 use crate::allan::noisefit;
 use crate::allan::noisefit::NoiseFit;
 use crate::allan::{
-    AnalysisPoint, Analyzer, DevKind, Options as AllanOptions, TauSpec, edf_for_kind,
+    AnalysisPoint, Analyzer, DevKind, Halves, Options as AllanOptions, TauSpec, edf_for_kind,
 };
 use crate::stats::median;
 use crate::twin::{GaussMarkov, gm_basis};
@@ -24,6 +24,12 @@ pub(super) fn octave(an: &mut Analyzer, y: &[f64], tau0: f64) -> Vec<AnalysisPoi
 /// [`octave`]'s τ and deviations only (no noise type, EDF or interval; the same values), where nothing else is read.
 pub(super) fn octave_devs(an: &mut Analyzer, y: &[f64], tau0: f64) -> Vec<AnalysisPoint> {
     an.deviations(DevKind::Oadev, y, tau0, &TauSpec::Octave)
+}
+
+/// [`octave`] of the first half of `y`, and [`octave_devs`] of its second half and of the whole, from one pass over
+/// each half (`Analyzer::analyze_halves`: the halves' values the same, the whole's up to rounding).
+pub(super) fn octave_halves(an: &mut Analyzer, y: &[f64], tau0: f64) -> Halves {
+    an.analyze_halves(y, tau0, &TauSpec::Octave, &AllanOptions::default())
 }
 
 pub(super) fn weighted_mean(series: &[&[f64]], w: &[f64]) -> Vec<f64> {
@@ -148,12 +154,13 @@ pub(super) struct Half {
 }
 
 impl Half {
-    /// Measures one half: `series` the sensors, `w` the weights, `typ` the typical sensor's shape (for noise types).
+    /// Measures one half: `series` the sensors, `mean` their cluster mean ([`weighted_mean`] with the weights),
+    /// `typ` the typical sensor's shape (for noise types).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn measure(
         an: &mut Analyzer,
         series: &[&[f64]],
-        w: &[f64],
+        mean: &[f64],
         tau0: f64,
         min_blocks: usize,
         typ: &Shape,
@@ -161,8 +168,7 @@ impl Half {
         temp: Option<&[f64]>,
     ) -> Half {
         let n = series.iter().map(|s| s.len()).min().unwrap_or(0);
-        let mean = weighted_mean(series, w);
-        let cl = octave_devs(an, &mean, tau0);
+        let cl = octave_devs(an, mean, tau0);
         let temp_pts = temp.map(|t| octave_devs(an, t, tau0)).unwrap_or_default();
         let ns = series.len();
         let mut h = Half {
