@@ -150,9 +150,8 @@ pub(super) fn sibling(st: &AxisState, kinds: &[&str], opts: &Options) -> Option<
     );
     let current = chi2(&p0);
     let excess_now = (current - p0.len() as f64).max(0.0);
-    let z_crit = Normal::new(0.0, 1.0)
-        .map(|n| n.inverse_cdf(1.0 - opts.p_sibling))
-        .unwrap_or(f64::INFINITY);
+    let z_crit = upper_z(opts.p_sibling);
+    let z0: Vec<f64> = p0.iter().map(|a| a.z).collect();
     let mut best: Option<(f64, usize)> = None;
     for (i, c) in st.cands.iter().enumerate() {
         if !kinds.contains(&c.kind) || !cross_confirmed(c, &[], &st.hh, &st.wts, opts) {
@@ -160,16 +159,8 @@ pub(super) fn sibling(st: &AxisState, kinds: &[&str], opts: &Options) -> Option<
         }
         let with = evaluate(&build(ns, &[c]), &st.hh, &st.wts, opts.model_tolerance);
         let shift: Vec<f64> = p0.iter().zip(&with).map(|(a, b)| a.z - b.z).collect();
-        let num: f64 = p0.iter().zip(&shift).map(|(a, s)| a.z * s).sum();
-        let mut var = 0.0;
-        for (a, sa) in shift.iter().enumerate() {
-            for (b, sb) in shift.iter().enumerate() {
-                var += sa * sb * octave_corr(a.abs_diff(b));
-            }
-        }
         let x = chi2(&with);
-        if var > 0.0
-            && num / var.sqrt() > z_crit
+        if projection(&z0, &shift).is_some_and(|t| t > z_crit)
             && x <= current - opts.min_shrink * excess_now
             && best.is_none_or(|(bx, _)| x < bx)
         {
@@ -219,15 +210,26 @@ pub(super) fn cross_confirmed(
         resid.push(h.measured_cross_z(w, k) - z0);
         shift.push(h.cross_z(w, k, full.avar(w, t, v, th) / indep) - z0);
     }
-    let num: f64 = resid.iter().zip(&shift).map(|(r, s)| r * s).sum();
+    projection(&resid, &shift).is_some_and(|t| t > upper_z(opts.p_cross))
+}
+
+/// The projection of the held-out z-scores `r` on the shift `s` a candidate predicts for them,
+/// `T = Σ r_k s_k / √(sᵀRs)` (R the null correlation of neighbouring octaves, `octave_corr`): N(0, 1) when `r` is
+/// null noise, whatever `s`. `None` when `sᵀRs` is not positive (the candidate predicts no shift).
+fn projection(r: &[f64], s: &[f64]) -> Option<f64> {
+    let num: f64 = r.iter().zip(s).map(|(r, s)| r * s).sum();
     let mut var = 0.0;
-    for (a, sa) in shift.iter().enumerate() {
-        for (b, sb) in shift.iter().enumerate() {
+    for (a, sa) in s.iter().enumerate() {
+        for (b, sb) in s.iter().enumerate() {
             var += sa * sb * octave_corr(a.abs_diff(b));
         }
     }
-    let z_crit = Normal::new(0.0, 1.0)
-        .map(|n| n.inverse_cdf(1.0 - opts.p_cross))
-        .unwrap_or(f64::INFINITY);
-    var > 0.0 && num / var.sqrt() > z_crit
+    (var > 0.0).then(|| num / var.sqrt())
+}
+
+/// The one-sided normal quantile `z(1 − p)` (infinite where it cannot be computed: nothing passes).
+fn upper_z(p: f64) -> f64 {
+    Normal::new(0.0, 1.0)
+        .map(|n| n.inverse_cdf(1.0 - p))
+        .unwrap_or(f64::INFINITY)
 }
