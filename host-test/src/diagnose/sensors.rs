@@ -19,7 +19,8 @@ pub(super) struct Departure {
     pub(super) sensor: usize,
     /// Its level at short τ relative to the typical sensor (variance ratio).
     pub(super) level: f64,
-    /// The smaller of its two scan statistics (above its own level, above the cluster's prediction for it).
+    /// The scan statistic of its departure from both references (above its own level and above the cluster's
+    /// prediction for it, the smaller z-score at each τ).
     pub(super) scan: f64,
     /// The threshold.
     pub(super) threshold: f64,
@@ -152,16 +153,28 @@ impl ClusterPrediction {
     }
 }
 
-/// The two scans of sensor i on a half (each the one-sided scan of its per-τ z-scores): above its own short-τ
-/// level `level` at every τ (a uniformly noisy part is `outlier_sensor`, not this), and above what the cluster's
-/// model predicts for it (`pred`, with the spread of parts). One sensor's drift must pass both
-/// (an intersection–union test: its false-alarm probability is at most that of either).
+/// The two per-τ z-scores of sensor i on a half: above its own short-τ level `level` at every τ (a uniformly
+/// noisy part is `outlier_sensor`, not this), and above what the cluster's model predicts for it (`pred`, with the
+/// spread of parts).
 fn scans(hf: &Half, i: usize, level: f64, pred: &ClusterPrediction, tol: f64) -> [Vec<f64>; 2] {
     let nk = hf.len();
     [
         sensor_z(hf, i, &vec![level; nk], &[], tol),
         sensor_z(hf, i, &pred.p[i], &pred.spread(i), tol),
     ]
+}
+
+/// The scan statistic of a departure from both references at once: the one-sided scan of the per-τ smaller of the
+/// two z-scores. A drift exceeds both references at the τ where it acts; the intersection–union test holds point by
+/// point (`min(z₁, z₂) ≤ z_j` at every τ, so the scan of the minimum exceeds its threshold no more often than
+/// either reference's own scan under that reference's null). Two scans taken apart were passed by a sensor above
+/// one reference at some τ and above the other only at others: on null records with a Gauss–Markov bump a part
+/// with quiet white noise was above its own short-τ level from the bump's τ on (the bump is as large on every
+/// part) and above the cluster's prediction only at τ₀, where its white level is extrapolated from the τ that the
+/// bump shares with the white noise.
+fn joint_scan(z: &[Vec<f64>; 2]) -> f64 {
+    let m: Vec<f64> = z[0].iter().zip(&z[1]).map(|(a, b)| a.min(*b)).collect();
+    scan_statistic(&m)
 }
 
 /// Sensor i's short-τ level: the median ratio to the typical over the shorter half of the τ points.
@@ -173,9 +186,10 @@ fn short_level(hf: &Half, i: usize) -> f64 {
 }
 
 /// The sensors of one axis that depart at long τ, on the first half (`first`, statistics `hf`, the typical model
-/// `typ`), each with the slow terms of its excess. A sensor departs when its Allan variance exceeds, by the
-/// one-sided scan of its z-scores at `p_false / sensors`, both its own short-τ level and what the cluster's noise
-/// model predicts for it ([`ClusterPrediction`]: its own fast terms, the typical slow terms, the spread of parts);
+/// `typ`), each with the slow terms of its excess. A sensor departs when its Allan variance exceeds, at the same τ,
+/// both its own short-τ level and what the cluster's noise model predicts for it ([`ClusterPrediction`]: its own
+/// fast terms, the typical slow terms, the spread of parts): the one-sided scan of the smaller z-score per τ
+/// ([`joint_scan`]) at `p_false / sensors`;
 /// a departure whose Allan correlation with the others' mean exceeds three null standard deviations is left to
 /// the shared candidates.
 pub(super) fn departures(
@@ -199,8 +213,9 @@ pub(super) fn departures(
         if !(level.is_finite() && level > 0.0) {
             continue;
         }
-        let [z_own, z_cluster] = scans(hf, i, level, &pred, opts.model_tolerance);
-        let scan = scan_statistic(&z_own).min(scan_statistic(&z_cluster));
+        let z = scans(hf, i, level, &pred, opts.model_tolerance);
+        let scan = joint_scan(&z);
+        let [z_own, z_cluster] = z;
         let Some(k0) = (nk / 2..nk).find(|&k| z_own[k] > 2.0 && z_cluster[k] > 2.0) else {
             continue;
         };
@@ -313,7 +328,7 @@ pub(super) fn drift_candidate(w: &AxisWork, deps: &[Departure]) -> Option<Candid
     })
 }
 
-/// Whether sensor `i` departs on the held-out half `hh` as well (the same two scans at `p_false / sensors`, with the
+/// Whether sensor `i` departs on the held-out half `hh` as well (the same joint scan at `p_false / sensors`, with the
 /// cluster's prediction measured there; `typ` the typical model): one sensor's drift is reported on this
 /// per-sensor evidence even when the cluster's gap alone is not significant (it adds only `w_i²` of its variance
 /// to the mean).
@@ -328,7 +343,5 @@ pub(super) fn confirmed(hh: &Half, typ: &Terms, i: usize, opts: &Options) -> boo
     }
     let pred = ClusterPrediction::of(hh, typ);
     let thr = scan_threshold(nk, opts.p_false / ns as f64);
-    scans(hh, i, level, &pred, opts.model_tolerance)
-        .iter()
-        .all(|z| scan_statistic(z) > thr)
+    joint_scan(&scans(hh, i, level, &pred, opts.model_tolerance)) > thr
 }
