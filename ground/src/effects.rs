@@ -1,5 +1,5 @@
 //! `ground simulate`'s effect flags ([`EffectArgs`]): flag strings parsed into the library's typed
-//! [`Effects`](host_test::sim::effects::Effects) and [`Bandwidth`]s.
+//! [`Effects`] and [`Bandwidth`]s.
 
 use host_test::sim::effects::{Effects, TemperatureProfile, ThermalCoef};
 use host_test::sim::output::Bandwidth;
@@ -238,6 +238,8 @@ pub fn parse_temperature(s: &str) -> Result<TemperatureProfile> {
 }
 
 /// The effect flags of `ground simulate`.
+// The field docs are clap's help text: `[:OPTIONAL]` there is not an intra-doc link.
+#[allow(rustdoc::broken_intra_doc_links)]
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct EffectArgs {
     /// Common-mode noise shared by all groups: AXES:RHO_WHITE[:RHO_FLICKER] (e.g. gyro:0.1:0.2).

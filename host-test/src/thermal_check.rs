@@ -1,6 +1,6 @@
 //! The end-to-end check of on-board thermal compensation (issue 27), as `docs/calibration.md` describes it: one
 //! simulated board (fixed board seed) recorded still over a temperature ramp, calibrated with
-//! [`fit_thermal`](crate::calibrate::fit_thermal) (the factory table plus the fitted terms, as
+//! [`fit_thermal`] (the factory table plus the fitted terms, as
 //! `ground calibrate --thermal` writes it), then an orbit's temperature cycle replayed through the flight core with
 //! and without the table, and an isothermal record of the same board.
 //!

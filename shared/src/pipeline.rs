@@ -4,7 +4,7 @@
 //!
 //! Per frame: calibrate the 16 groups, feed the 96 sensor Allan channels, fuse, feed the 6 fused Allan channels,
 //! and add the fused sample to the output interval's running mean. Every `frames_per_output` frames the mean is
-//! sent as a [`FusedReport`].
+//! sent as a [`FusedReport`](crate::telemetry::FusedReport).
 //!
 //! # Output rate: averaging, not discarding
 //! The FPGA's decimator keeps 1 data set of every N + 1 and discards the rest; the noise of each kept sample is

@@ -133,7 +133,7 @@ fn ellipsoid(x: &[Vector3<f64>]) -> Option<(Matrix3<f64>, Vector3<f64>)> {
 }
 
 /// Fits bias and symmetric matrix of one accelerometer to static means (counts) so that the calibrated specific
-/// force has magnitude 1 g (see the module docs). Needs ≥ [`MIN_POSES`] poses spread over orientations.
+/// force has magnitude 1 g (see the module docs). Needs ≥ `MIN_POSES` poses spread over orientations.
 pub fn fit_magnitude(
     accel_counts: &[Vec3],
     nominal_g_per_count: f64,

@@ -11,9 +11,9 @@
 //! core sent; cluster bias stability — the core's fused Allan channel. Confidence intervals: Greenhall EDF at the
 //! noise type identified on the fused series, 68.3 %.
 //!
-//! The phases, one module each: [`replay`] simulates the record and drives the flight core with it; [`stats`]
-//! decodes what the core sent and computes the tables; [`diagnosis`] runs the sim-to-real diagnosis and the twin
-//! on the same record, and places it among commercial IMUs (`crate::tradeoff`, `tradeoff/`); [`files`] writes the plot and the files; [`report`] renders the Markdown report.
+//! The phases, one module each: `replay` simulates the record and drives the flight core with it; `stats`
+//! decodes what the core sent and computes the tables; `diagnosis` runs the sim-to-real diagnosis and the twin
+//! on the same record, and places it among commercial IMUs (`crate::tradeoff`, `tradeoff/`); `files` writes the plot and the files; [`report`] renders the Markdown report.
 
 mod diagnosis;
 use crate::file_error::FileError;

@@ -83,7 +83,7 @@ pub fn scan_statistic(z: &[f64]) -> f64 {
     best
 }
 
-/// The (1 − p) quantile of [`scan_statistic`] over `n` null z-scores (correlated as [`octave_corr`]), from 40,000
+/// The (1 − p) quantile of [`scan_statistic`] over `n` null z-scores (correlated as `octave_corr`), from 40,000
 /// seeded Monte Carlo draws (deterministic: computed once per `(n, p)` in a process and remembered).
 pub fn scan_threshold(n: usize, p: f64) -> f64 {
     use std::collections::BTreeMap;

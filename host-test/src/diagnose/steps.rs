@@ -8,7 +8,7 @@
 //! estimate (median of its `Δ²`, which a single step moves little), so a noisier sensor is not read as stepping.
 //! The largest `|Δ|/√(2σ²_A)` over windows and times is compared with one threshold for the whole axis: the level
 //! `u` at which the expected number of crossings of the scan, over the sensors, the windows `L` and every position
-//! `k`, is `p_false` ([`scan_level`]). Neighbouring positions of one window are correlated (`1 − 3h/(2L)` at a lag
+//! `k`, is `p_false` (`scan_level`). Neighbouring positions of one window are correlated (`1 − 3h/(2L)` at a lag
 //! of `h` blocks for white `d`), so a window has neither `n_blocks/L` independent tests (too few: the scan was
 //! measured to name a step on 0.54 % of clean axes at `p_false` 0.2 %) nor `n_blocks` (too many at long windows);
 //! the crossing rate of such a process sampled on a grid is Siegmund's (1985, eq. 3.24 with his `ν` function; the

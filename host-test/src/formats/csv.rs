@@ -43,7 +43,7 @@ pub fn push_value(out: &mut String, v: f64) {
     }
 }
 
-/// Parses a decimal number. Plain forms (`[-]digits[.digits]`, see [`fast_number`]) are converted exactly by
+/// Parses a decimal number. Plain forms (`[-]digits[.digits]`, see `fast_number`) are converted exactly by
 /// Clinger's fast path; anything else (exponents, `+`, long mantissas) goes to the standard library. Both give the
 /// correctly rounded value.
 pub fn parse_f64(s: &str) -> Option<f64> {
@@ -181,7 +181,7 @@ impl Recording {
 
     /// Parses CSV from `src` (`size_hint` bytes expected, for reserving the columns; `name` for I/O errors).
     ///
-    /// The text is read in blocks of [`BLOCK_BYTES`] cut at line ends; each block is cut into pieces parsed in
+    /// The text is read in blocks of `BLOCK_BYTES` cut at line ends; each block is cut into pieces parsed in
     /// parallel straight into their rows of the columns, while the next block is read. Only the header and
     /// cells the fast path refuses need to be UTF-8 (a cell that is not gets a positioned error), so the body is
     /// never validated or copied as a whole, and memory holds one block and the columns.

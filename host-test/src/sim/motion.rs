@@ -2,7 +2,7 @@
 //! with its true attitude and the body rate and specific force its sensors measure.
 //!
 //! - `coning:half_angle_deg=A,freq_hz=F`: body-to-reference attitude C(t) = Rz(Ωt)·Rx(a)·Rz(−Ωt), Ω = 2πF; body
-//!   rate ω = Ω (Cᵀ e_z − e_z) (from Cᵀ Ċ = Ω (Cᵀ [e_z]× C − [e_z]×)).
+//!   rate ω = Ω (Cᵀ e_z − e_z) (from Cᵀ Ċ = Ω (Cᵀ \[e_z\]× C − \[e_z\]×)).
 //! - `sculling:angle_amp_deg=A,accel_amp_g=B,freq_hz=F`: C(t) = Rx(θ), θ = A sin Ωt, ω = (A Ω cos Ωt, 0, 0), and a
 //!   linear acceleration B sin Ωt along the body y axis, in phase with the angle.
 //!

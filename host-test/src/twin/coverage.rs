@@ -5,7 +5,7 @@
 //! a warm-up taken out), with its 68 % interval: χ² at the Satterthwaite EDF of the sum,
 //! `ν = (Σ aᵢ)² / Σ (aᵢ²/νᵢ)` (each sensor's Greenhall EDF νᵢ, the sensors' estimates independent).
 //!
-//! Computed by [`super::fit`] on the record it fits (the empirical interval is that of the very record, so a miss
+//! Computed by [`super::fit()`] on the record it fits (the empirical interval is that of the very record, so a miss
 //! is a shape the terms cannot follow, not a held-out error) and kept in [`super::AxisModel::coverage`]; it is not
 //! written to the model file.
 

@@ -4,10 +4,10 @@
 //! - **Thermal**: each sensor's coefficient is the diagnosis's; the sensors' series are fitted with
 //!   `β·(T − T_ref)` removed, so that the temperature is not counted twice (once in β, once as random walk).
 //! - **Levels**: where the diagnosis found unequal sensors (`unequal_noise`, `outlier_sensor`), each sensor's
-//!   variance factor `qᵢ`, refitted by the diagnosis's estimator on the cleaned whole record ([`levels`]).
+//!   variance factor `qᵢ`, refitted by the diagnosis's estimator on the cleaned whole record (`levels`).
 //! - **Typical sensor** `T`: five terms (Q, N, B, K, R) and 0–2 Gauss–Markov terms ([`super::terms_fit`]: their
 //!   count chosen on the record's halves) fitted to the sensors' mean Allan variance over their mean factor `q̄`,
-//!   weighted by the mean's Satterthwaite EDF ([`mean_curve`]): the fit of the mean.
+//!   weighted by the mean's Satterthwaite EDF (`mean_curve`): the fit of the mean.
 //! - **Own terms**: `qᵢ·T` (T without levels), so that the model's mean sensor is the fit of the record's mean; where
 //!   the diagnosis chose the level that varies with τ (`AxisFit::level_terms`), T scaled term by term, each
 //!   sensor's factors held to its `qᵢ` by a pull chosen on the record's halves (`twin/levels.rs`). A free

@@ -1,6 +1,6 @@
-//! The cluster's twin: the model the diagnosis fits to a recording ([`fit`]), written as a versioned TOML file
-//! (`docs/twin.md`), played back as a synthetic recording of the same cluster ([`play`]), and the sim-to-real gap
-//! measured directly between two recordings ([`compare`]).
+//! The cluster's twin: the model the diagnosis fits to a recording ([`fit()`]), written as a versioned TOML file
+//! (`docs/twin.md`), played back as a synthetic recording of the same cluster ([`play()`]), and the sim-to-real gap
+//! measured directly between two recordings ([`compare()`]).
 //!
 //! The model is what the diagnosis found, in the simulator's terms: per sensor and axis its own (independent)
 //! noise terms and mean, its thermal coefficient; per axis the processes shared by several sensors; and a model of

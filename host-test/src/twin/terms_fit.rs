@@ -76,7 +76,7 @@ pub fn fit(whole: &[Obs], halves: Option<[&[Obs]; 2]>, spec: &Spec) -> NoiseTerm
 }
 
 /// [`fit`] with the sensors' bandwidth put to the same held-out test: the fit without it replaces the fit with it
-/// when its two-fold held-out cost is lower by [`HELD_OUT_GAIN_MIN`] (a Gauss–Markov bump can pass for a
+/// when its two-fold held-out cost is lower by `HELD_OUT_GAIN_MIN` (a Gauss–Markov bump can pass for a
 /// single-pole roll-off in the diagnosis's look at short τ, and then no term of the family follows the record).
 /// Returns the terms and whether the bandwidth is kept; without a bandwidth or halves, [`fit`] and `true`.
 pub fn fit_band_tested(

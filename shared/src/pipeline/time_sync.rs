@@ -126,7 +126,7 @@ impl TimeSync {
 
 impl<B: BorrowMut<PipelineMemory>> Pipeline<B> {
     /// A PPS edge at `edge_us` on the arrival clock ([`Self::set_arrival_us`]'s): the spacecraft's whole second
-    /// (see [`TimeSync::pps`]). Returns the correction, µs; `None` if the edge was refused (counted).
+    /// (see `TimeSync::pps`). Returns the correction, µs; `None` if the edge was refused (counted).
     pub fn pps(&mut self, edge_us: u64) -> Option<i64> {
         self.time.pps(edge_us)
     }

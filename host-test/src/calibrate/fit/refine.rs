@@ -62,8 +62,8 @@ pub(crate) fn t_ref(poses: &[StaticInterval]) -> f64 {
 
 /// Joint refinement of all IMUs (see the module docs, step 3), started from matrices already in the cluster frame
 /// (`init_matrix_g_per_count`, e.g. `R_i·M_i`) and biases (counts). Phases: the inputs checked
-/// ([`check_inputs`]), the data normalised ([`Normalised::of`]), the start ([`Problem::start`]), Levenberg–Marquardt
-/// on [`Problem::eval`], the result back in counts ([`Problem::unpack`]).
+/// (`check_inputs`), the data normalised (`Normalised::of`), the start (`Problem::start`), Levenberg–Marquardt
+/// on `Problem::eval`, the result back in counts (`Problem::unpack`).
 pub fn refine_cluster(
     poses: &[StaticInterval],
     init_matrix_g_per_count: &[Mat3],

@@ -1,4 +1,4 @@
-//! A simulation's output: written to a file as a frame log or an interchange CSV ([`write`], with the rate and size
+//! A simulation's output: written to a file as a frame log or an interchange CSV ([`write()`], with the rate and size
 //! checks of `ground simulate`: [`check_rates`], [`check_samples`], [`frame_opts`]), or collected in memory as a
 //! [`Recording`](crate::recording::Recording) ([`recording`]); either through the outputs' bandwidths
 //! ([`bandwidth`]).
@@ -44,7 +44,7 @@ pub fn write(cfg: SimConfig, path: &Path, progress: impl FnMut(u64)) -> Result<S
     write_filtered(cfg, &[], path, progress)
 }
 
-/// [`write`] with the outputs' bandwidths (`--bandwidth-hz`, [`BandwidthFilter`]); CSV output only when any.
+/// [`write()`] with the outputs' bandwidths (`--bandwidth-hz`, [`BandwidthFilter`]); CSV output only when any.
 pub fn write_filtered(
     cfg: SimConfig,
     bands: &[Bandwidth],
