@@ -302,7 +302,8 @@ pub(crate) fn deviation_ratios(singles: &[Vec<f64>], typical: &[f64]) -> Option<
 
 /// Heterogeneity: each sensor's level relative to the typical one (median over τ of the deviation ratio), as
 /// `outlier_sensor` or `unequal_noise`, offered twice: with that one factor per sensor, and with each sensor's level
-/// as it varies with τ, from the first half's fits (`fits`, [`TermLevels`]). Parts differ term by term; but a
+/// as it varies with τ, from the first half's fits (`fits`, [`TermLevels`]), corrected toward the measured ratios
+/// where the fits miss them ([`TermLevels::shrunk`]). Parts differ term by term; but a
 /// single sensor's fit also carries its long-τ estimation error, which the one factor (a median over every τ) does
 /// not: on the null of unequal parts (`tests/diagnose_false_alarms.rs`) either form alone left gaps the other
 /// closes, 14 and 13 false alarms in 400 records, both together 8.
@@ -349,11 +350,27 @@ fn level_candidate(w: &AxisWork, hf: &Half, ns: usize, fits: &Fits) -> Option<[C
         params: params(false),
     };
     let varying = Candidate {
-        level_terms: Some(TermLevels {
-            typical: fits.typical,
-            own: fits.sensors.clone(),
-            tau_max_s: hf.tau_s.last().copied().unwrap_or(0.0),
-        }),
+        level_terms: Some(
+            TermLevels {
+                typical: fits.typical,
+                own: fits.sensors.clone(),
+                tau_max_s: hf.tau_s.last().copied().unwrap_or(0.0),
+                measured: Vec::new(),
+            }
+            .shrunk(
+                &hf.tau_s,
+                &hf.single_edf,
+                &(0..ns)
+                    .map(|i| {
+                        hf.singles[i]
+                            .iter()
+                            .zip(&hf.typical)
+                            .map(|(a, t)| a / t.max(1e-300))
+                            .collect()
+                    })
+                    .collect::<Vec<_>>(),
+            ),
+        ),
         params: params(true),
         ..constant.clone()
     };

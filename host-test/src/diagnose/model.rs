@@ -161,7 +161,8 @@ pub enum Cross {
 /// composite model: `q_i(τ) = S_i(τ) / T(τ)`, `S_i` sensor i's terms and `T` the typical's (both the four-term fit),
 /// held at its value at `tau_max_s`, the longest τ the fits saw. Parts differ term by term (one with 1.4× the
 /// typical white noise and 0.8× its flicker has `q` falling from 1.96 to 0.64 where the terms hand over, one with a
-/// random walk the typical lacks rises at long τ), which one factor per sensor cannot follow.
+/// random walk the typical lacks rises at long τ), which one factor per sensor cannot follow. Where the fits miss
+/// the measured ratios (a shape four terms cannot follow), the ratio is corrected toward them ([`TermLevels::shrunk`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct TermLevels {
     /// The typical sensor's terms `T`.
@@ -170,14 +171,79 @@ pub struct TermLevels {
     pub own: Vec<Terms>,
     /// The longest τ of the fits, s.
     pub tau_max_s: f64,
+    /// Where the fits' ratio misses the measured one: at each τ of the fitting half (s), each sensor's factor on
+    /// `S_i/T` toward its measured ratio ([`TermLevels::shrunk`]); empty: the fits' ratio alone.
+    pub measured: Vec<(f64, Vec<f64>)>,
 }
 
 impl TermLevels {
-    /// Sensor `i`'s variance factor at `tau_s` (none for an unknown sensor or a ratio that is not positive).
+    /// Sensor `i`'s variance factor at `tau_s` (none for an unknown sensor or a ratio that is not positive): the
+    /// fits' ratio, times the measured correction at the same τ of the fitting half when there is one.
     pub fn at(&self, i: usize, tau_s: f64) -> Option<f64> {
         let t = tau_s.min(self.tau_max_s);
         let q = self.own.get(i)?.avar(t) / self.typical.avar(t);
+        let c = self
+            .measured
+            .iter()
+            .find(|(tk, _)| (tau_s / tk).ln().abs() < 0.1)
+            .and_then(|(_, f)| f.get(i).copied())
+            .unwrap_or(1.0);
+        let q = q * c;
         (q.is_finite() && q > 0.0).then_some(q)
+    }
+
+    /// The corrections toward the measured ratios (empirical Bayes): sensor i's measured ratio to the typical at
+    /// τ_k, `r_ik = σ̂²_ik/V_k`, departs from the fits' `S_i/T` by `d_ik = ln r_ik − ln(S_i/T)`, which is the fits'
+    /// misfit (variance `m²`, the same for every sensor and τ) plus the χ² scatter of the sensor's estimate
+    /// (`ψ′(ν_k/2)`). `m²` is the mean of `d² − ψ′` over sensors and τ (each τ weighted by `1/ψ′²`, as the spread of
+    /// parts in `sensors`), at least 0; the correction is the posterior mean `exp(λ_k d_ik)`,
+    /// `λ_k = m²/(m² + ψ′(ν_k/2))`: the measured ratio where it is measured well and the fits miss (a
+    /// Gauss–Markov bump, as large on every part, which four terms cannot follow: the parts' ratio falls from their
+    /// white levels at τ₀ to 1 where the bump dominates), the fits where the curves follow them (`m²` ≈ 0) or few
+    /// blocks leave the measurement to its χ² scatter. `tau_s`, `edf` the half's τ and single-sensor EDF, `ratio[i][k]`
+    /// the measured ratios.
+    pub fn shrunk(mut self, tau_s: &[f64], edf: &[f64], ratio: &[Vec<f64>]) -> Self {
+        let nk = tau_s.len().min(edf.len());
+        let fit = |i: usize, k: usize| {
+            let t = tau_s[k].min(self.tau_max_s);
+            self.own
+                .get(i)
+                .map_or(f64::NAN, |o| o.avar(t) / self.typical.avar(t))
+        };
+        let d: Vec<Vec<f64>> = ratio
+            .iter()
+            .enumerate()
+            .map(|(i, r)| (0..nk).map(|k| (r[k] / fit(i, k)).ln()).collect())
+            .collect();
+        let chi: Vec<f64> = (0..nk)
+            .map(|k| super::sensors::trigamma(edf[k] / 2.0))
+            .collect();
+        let (mut num, mut den) = (0.0, 0.0);
+        for k in 0..nk {
+            let wt = 1.0 / (chi[k] * chi[k]);
+            for di in &d {
+                let e = di[k] * di[k] - chi[k];
+                if e.is_finite() && wt.is_finite() {
+                    num += wt * e;
+                    den += wt;
+                }
+            }
+        }
+        let m2 = if den > 0.0 { (num / den).max(0.0) } else { 0.0 };
+        self.measured = (0..nk)
+            .map(|k| {
+                let lambda = m2 / (m2 + chi[k]);
+                let f = d
+                    .iter()
+                    .map(|di| {
+                        let c = (lambda * di[k]).exp();
+                        if c.is_finite() { c } else { 1.0 }
+                    })
+                    .collect();
+                (tau_s[k], f)
+            })
+            .collect();
+        self
     }
 }
 
@@ -322,6 +388,7 @@ mod tests {
             typical,
             own: vec![own],
             tau_max_s: 100.0,
+            measured: Vec::new(),
         };
         for tau in [0.01, 1.0, 37.0, 100.0] {
             let want = own.avar(tau) / typical.avar(tau);
@@ -344,6 +411,40 @@ mod tests {
         let v = m.avar(&w, 37.0, 1.0, None);
         let q0 = own.avar(37.0) / typical.avar(37.0);
         assert!((v - 0.25 * (q0 + 1.0)).abs() < 1e-12, "{v}");
+    }
+
+    #[test]
+    fn term_levels_shrink_to_the_measured_ratio_only_where_the_fits_miss_it() {
+        let typical = Terms([0.0, 1.0, 0.0, 0.0, 0.0]);
+        let own = vec![
+            Terms([0.0, 0.5, 0.0, 0.0, 0.0]),
+            Terms([0.0, 2.0, 0.0, 0.0, 0.0]),
+        ];
+        let l = TermLevels {
+            typical,
+            own,
+            tau_max_s: 8.0,
+            measured: Vec::new(),
+        };
+        let tau = [1.0, 2.0, 4.0, 8.0];
+        let edf = [1000.0, 500.0, 50.0, 3.0];
+        // Measured exactly as fitted: no misfit, the fits' ratio.
+        let exact = vec![vec![0.5; 4], vec![2.0; 4]];
+        let same = l.clone().shrunk(&tau, &edf, &exact);
+        for t in tau {
+            assert!((same.at(0, t).unwrap_or(0.0) - 0.5).abs() < 1e-12);
+            assert!((same.at(1, t).unwrap_or(0.0) - 2.0).abs() < 1e-12);
+        }
+        // The fits miss by a factor 1.5 at every τ: the measured ratio where the EDF is large, close to the fits'
+        // where it is small (ψ′(1.5) ≈ 0.93 against a misfit variance ≈ 0.16).
+        let off = vec![vec![0.75; 4], vec![3.0; 4]];
+        let s = l.shrunk(&tau, &edf, &off);
+        assert!((s.at(0, 1.0).unwrap_or(0.0) / 0.75 - 1.0).abs() < 0.01);
+        assert!((s.at(1, 2.0).unwrap_or(0.0) / 3.0 - 1.0).abs() < 0.01);
+        let long = s.at(1, 8.0).unwrap_or(0.0);
+        assert!(long > 2.0 && long < 2.4, "{long}");
+        // Past the fitting half's τ: the fits' ratio, held.
+        assert!((s.at(1, 16.0).unwrap_or(0.0) - 2.0).abs() < 1e-12);
     }
 
     #[test]
