@@ -15,7 +15,7 @@
 //! disturbed above that law's saddlepoint quantile at `p_false` over all windows and axes (Bonferroni).
 //! Consecutive disturbed windows of an axis are one disturbance (spec: `docs/diagnose.md`).
 //!
-//! The law of `Σ λ_k χ²₁` is written here ([`saddlepoint_quantile`]): statrs and the other crates at hand have the
+//! The law of `Σ λ_k χ²₁` is written here (`saddlepoint_quantile`): statrs and the other crates at hand have the
 //! χ² but not its weighted sums (Imhof's, Davies' or a saddlepoint method); the test checks it against the χ²
 //! quantiles where the sum is one.
 
