@@ -56,10 +56,10 @@ fn detrended_variance(y: &[f64]) -> f64 {
 }
 
 /// The eigenvalues of a window's residual covariance (its samples about its least-squares line), from the cluster
-/// mean `mean` itself: the autocovariance of the windows' residuals per lag (averaged over windows and positions;
-/// a window whose variance exceeds twice the median counts with its residuals scaled down to that, so that a
-/// disturbance does not shape the null it is judged against), as a Toeplitz covariance, projected off each
-/// window's line. A window's variance about its line is then `Σ λ_k χ²₁ / ν` (Gaussian noise).
+/// mean `mean` itself: the autocovariance per lag of the residuals of blocks of four windows, each block about its
+/// own line (a block whose worst window's variance exceeds twice the median counts scaled down to that, so that a
+/// disturbance does not shape the null it is judged against), as a Toeplitz covariance, projected off a window's
+/// line. A window's variance about its line is then `Σ λ_k χ²₁ / ν` (Gaussian noise).
 fn residual_eigenvalues(mean: &[f64], var: &[f64]) -> Vec<f64> {
     let cap = 2.0 * median(var);
     let mut gamma = vec![0.0; WINDOW];
