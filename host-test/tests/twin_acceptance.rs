@@ -351,7 +351,7 @@ fn the_twin_of_real_mimu4444_records() {
         .collect();
     let (mut with_total, mut without_total) = (0, 0);
     let (mut outside, mut taus) = (0, 0);
-    let (mut replica_outside, mut replica_taus) = (0, 0);
+    let (mut replica_outside, mut replica_taus) = ([0; 3], [0; 3]);
     let mut same_interval: Vec<String> = Vec::new();
     for (e, rec) in recs.iter().enumerate() {
         let report = diagnose(rec, &Options::default()).unwrap();
@@ -373,18 +373,34 @@ fn the_twin_of_real_mimu4444_records() {
             },
         )
         .unwrap();
-        // The reference for item 1's count: the fitted model's own record, diagnosed and fitted the same way,
-        // against its own intervals (a parametric bootstrap: what a model of exactly this family scores).
-        let replica = diagnose(&own, &Options::default())
-            .ok()
-            .and_then(|r| twin::fit(&own, &r, "replica").ok());
-        for c in replica
-            .iter()
-            .flat_map(|m| &m.axes)
-            .filter_map(|a| a.coverage.as_ref())
-        {
-            replica_outside += c.outside_s.len();
-            replica_taus += c.taus_s.len();
+        // The reference for item 1's count: the fitted model's own records (this seed's and two more), diagnosed
+        // and fitted the same way, against their own intervals (a parametric bootstrap: what a model of exactly
+        // this family scores).
+        for (r, seed) in [101, 102, 103].into_iter().enumerate() {
+            let played = if seed == 101 {
+                None
+            } else {
+                twin::play(
+                    &model,
+                    &PlayOptions {
+                        seed,
+                        ..Default::default()
+                    },
+                )
+                .ok()
+            };
+            let rec_r = played.as_ref().unwrap_or(&own);
+            let replica = diagnose(rec_r, &Options::default())
+                .ok()
+                .and_then(|d| twin::fit(rec_r, &d, "replica").ok());
+            for c in replica
+                .iter()
+                .flat_map(|m| &m.axes)
+                .filter_map(|a| a.coverage.as_ref())
+            {
+                replica_outside[r] += c.outside_s.len();
+                replica_taus[r] += c.taus_s.len();
+            }
         }
         let c = twin::compare(rec, &own, &CompareOptions::default()).unwrap();
         eprintln!(
@@ -437,19 +453,22 @@ fn the_twin_of_real_mimu4444_records() {
     );
     eprintln!(
         "fitted terms outside the record's 68 % interval at {outside} of {taus} octave τ; \
-         on records played from the fitted models and fitted the same way: {replica_outside} of {replica_taus}"
+         on records played from the fitted models and fitted the same way (three seeds): {replica_outside:?} of \
+         {replica_taus:?}"
     );
     assert!(
         with_total < without_total,
         "{with_total} vs {without_total}"
     );
-    // The procedure on its own family: records played from the six fitted models, diagnosed and fitted the same
-    // way, are outside their own intervals at under a third of the τ (measured: 66 of 360, where the real records
-    // are at 168; even a model of exactly the fitted family is not inside at every τ).
-    assert!(
-        replica_taus > 0 && 3 * replica_outside <= replica_taus,
-        "{replica_outside} of {replica_taus}"
-    );
+    // The procedure on its own family: records played from the six fitted models (three seeds), diagnosed and
+    // fitted the same way, are outside their own intervals at under a third of the τ (measured: 66, 104 and 80 of
+    // 360, where the real records are at 168; even a model of exactly the fitted family is not inside at every τ).
+    for (o, t) in replica_outside.iter().zip(&replica_taus) {
+        assert!(
+            *t > 0 && 3 * o <= *t,
+            "{replica_outside:?} of {replica_taus:?}"
+        );
+    }
     // Against the interval it was fitted on: every accelerometer axis reproduced (their lines wander: played as
     // tones of the windows' power, `docs/twin.md`); of the gyros' 18 axes, at most 12 told apart (measured: 10 at
     // this seed, 12 before the mean fit and `compare`'s EDF cap; the gyros carry several wandering lines per part, which neither a tone nor an AR(1) term follows).
