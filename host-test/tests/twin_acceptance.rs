@@ -376,10 +376,9 @@ fn the_twin_of_real_mimu4444_records() {
         // The reference for item 1's count: the fitted model's own records (this seed's and two more), diagnosed
         // and fitted the same way, against their own intervals (a parametric bootstrap: what a model of exactly
         // this family scores).
-        for (r, seed) in [101, 102, 103].into_iter().enumerate() {
-            let played = if seed == 101 {
-                None
-            } else {
+        let more: Vec<_> = [102, 103]
+            .into_iter()
+            .map(|seed| {
                 twin::play(
                     &model,
                     &PlayOptions {
@@ -387,9 +386,10 @@ fn the_twin_of_real_mimu4444_records() {
                         ..Default::default()
                     },
                 )
-                .ok()
-            };
-            let rec_r = played.as_ref().unwrap_or(&own);
+                .unwrap()
+            })
+            .collect();
+        for (r, rec_r) in std::iter::once(&own).chain(&more).enumerate() {
             let replica = diagnose(rec_r, &Options::default())
                 .ok()
                 .and_then(|d| twin::fit(rec_r, &d, "replica").ok());

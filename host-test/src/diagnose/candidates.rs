@@ -360,10 +360,11 @@ fn level_candidate(w: &AxisWork, hf: &Half, ns: usize, fits: &Fits) -> Option<[C
             .shrunk(
                 &hf.tau_s,
                 &hf.single_edf,
-                &(0..ns)
-                    .map(|i| {
-                        hf.singles[i]
-                            .iter()
+                &hf.singles
+                    .iter()
+                    .take(ns)
+                    .map(|s| {
+                        s.iter()
                             .zip(&hf.typical)
                             .map(|(a, t)| a / t.max(1e-300))
                             .collect()

@@ -213,7 +213,11 @@ impl TermLevels {
         let d: Vec<Vec<f64>> = ratio
             .iter()
             .enumerate()
-            .map(|(i, r)| (0..nk).map(|k| (r[k] / fit(i, k)).ln()).collect())
+            .map(|(i, r)| {
+                (0..nk)
+                    .map(|k| r.get(k).map_or(f64::NAN, |r| (r / fit(i, k)).ln()))
+                    .collect()
+            })
             .collect();
         let chi: Vec<f64> = (0..nk)
             .map(|k| super::sensors::trigamma(edf[k] / 2.0))
