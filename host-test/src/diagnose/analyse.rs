@@ -364,7 +364,7 @@ fn analyse_axis(
         &pts_first,
         temp.map(|t| &t[..half]),
     );
-    let hh = Half::measure(
+    let mut hh = Half::measure(
         an,
         &second,
         &mean_held,
@@ -374,6 +374,7 @@ fn analyse_axis(
         &pts_held,
         temp.map(|t| &t[half..]),
     );
+    hh.pair_with(&hf);
     let own = periodic::own_lines(&first, &second, tau0, opts.p_false);
     let cands = candidates(
         an,
@@ -391,7 +392,7 @@ fn analyse_axis(
         &own,
     );
     let mean_whole = [mean_first, mean_held].concat();
-    let hw = Half::measure(
+    let mut hw = Half::measure(
         an,
         &w.series,
         &mean_whole,
@@ -401,6 +402,7 @@ fn analyse_axis(
         &pts_whole,
         temp,
     );
+    hw.pair_with(&hf);
     let thr = scan_threshold(hw.len(), opts.p_false);
     let mut chosen = select(&cands, &hw, &hh, &wts, opts, thr, None);
     // Effects that together remove less than half of the held-out excess are not named: the gap is `unexplained`.

@@ -272,6 +272,11 @@ impl Model {
         }
     }
 
+    /// Whether the model gives the sensors levels of their own (not all 1).
+    pub fn has_levels(&self) -> bool {
+        self.level_terms.is_some() || self.level.iter().any(|&q| q != 1.0)
+    }
+
     /// Sensor `i`'s variance factor at `tau_s` relative to the typical sensor.
     pub fn q(&self, i: usize, tau_s: f64) -> f64 {
         self.level_terms

@@ -36,8 +36,9 @@ pub(super) fn point_gap(
 pub(super) fn evaluate(model: &Model, h: &Half, w: &[f64], tol: f64) -> Vec<PointGap> {
     (0..h.len())
         .map(|k| {
-            let pred = model.avar(w, h.tau_s[k], h.typical[k], h.temp[k]);
-            point_gap(h.cluster[k], pred, h.edf[k], h.typical_sigma[k], tol)
+            let (v, v_sigma) = h.scale(model, w, k);
+            let pred = model.avar(w, h.tau_s[k], v, h.temp[k]);
+            point_gap(h.cluster[k], pred, h.edf[k], v_sigma, tol)
         })
         .collect()
 }

@@ -33,8 +33,8 @@ pub(super) fn acts(
 ) -> Acts {
     let share: Vec<f64> = (0..h.len())
         .map(|k| {
-            let a = full.avar(w, h.tau_s[k], h.typical[k], h.temp[k]);
-            let b = without.avar(w, h.tau_s[k], h.typical[k], h.temp[k]);
+            let a = full.avar(w, h.tau_s[k], h.scale(full, w, k).0, h.temp[k]);
+            let b = without.avar(w, h.tau_s[k], h.scale(without, w, k).0, h.temp[k]);
             if a > 0.0 { ((a - b) / a).abs() } else { 0.0 }
         })
         .collect();
