@@ -461,8 +461,8 @@ fn the_twin_of_real_mimu4444_records() {
         "{with_total} vs {without_total}"
     );
     // The procedure on its own family: records played from the six fitted models (three seeds), diagnosed and
-    // fitted the same way, are outside their own intervals at under a third of the τ (measured: 72, 109 and 79 of
-    // 360, where the real records are at 166; even a model of exactly the fitted family is not inside at every τ).
+    // fitted the same way, are outside their own intervals at under a third of the τ (measured: 68, 105 and 79 of
+    // 360, where the real records are at 181; even a model of exactly the fitted family is not inside at every τ).
     for (o, t) in replica_outside.iter().zip(&replica_taus) {
         assert!(
             *t > 0 && 3 * o <= *t,

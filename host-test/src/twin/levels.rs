@@ -6,7 +6,8 @@
 //! A free fit per sensor copies its long-τ estimation error (a handful of blocks) into the twin, so the factors are
 //! held to the sensor's one factor `qᵢ`: each is fitted by non-negative weighted least squares to the sensor's
 //! octave points with a pull toward `qᵢ` worth ν₀ degrees of freedom (a pseudo-observation `fₖ = qᵢ`, relative
-//! weight ν₀/2), and ν₀ — ∞ (the one factor), 32, 4 or 0 — is chosen per sensor on the record's own halves: fitted
+//! weight ν₀/2; the points weighted by the model's variance, reweighted three times, as a weight from the
+//! observation favours the points that scatter low), and ν₀ — ∞ (the one factor), 32, 4 or 0 — is chosen per sensor on the record's own halves: fitted
 //! on one half, scored on the other (`Σ ν/2·ln²(measured/model)`), both ways, the one factor kept unless another
 //! scores lower by the 95th percentile of a χ² with the added parameters' degrees of freedom ([`gain_min`]); the
 //! chosen factors are then refitted on the whole record. (Rescaling each group's factors to sum to `Σ qᵢ`, to keep
@@ -77,6 +78,9 @@ fn observations(points: &[AnalysisPoint], drift: &[f64; 5], band: Option<&LowPas
         .collect()
 }
 
+/// Rounds of reweighting in [`fit`].
+const IRLS_ROUNDS: usize = 3;
+
 /// The factors fitted to `obs` with a pull of `nu0` degrees of freedom toward `q` (the one factor); term groups the
 /// typical terms lack get `q`. `None` when the least squares fail (no point, or no positive `q`).
 fn fit(obs: &[Obs], typical: &Typical, q: f64, nu0: f64) -> Option<Factors> {
@@ -107,6 +111,17 @@ fn fit(obs: &[Obs], typical: &Typical, q: f64, nu0: f64) -> Option<Factors> {
         }
     }
     let mut f = nnls(&rows)?;
+    // Weighted by the model's variance, not the observation's (`ν/2m²`, iterated): a weight from the observation
+    // favours the points that scatter low, which at long τ (a handful of blocks) pulled the factors down.
+    for _ in 0..IRLS_ROUNDS {
+        for ((g, _, w), o) in rows.iter_mut().zip(obs) {
+            let m: f64 = g.iter().zip(&f).map(|(g, f)| g * f).sum();
+            if m > 0.0 && m.is_finite() {
+                *w = o.weight * o.avar * o.avar / (m * m);
+            }
+        }
+        f = nnls(&rows)?;
+    }
     (0..5)
         .filter(|k| !active.contains(k))
         .for_each(|k| f[k] = q);
