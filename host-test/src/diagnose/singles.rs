@@ -130,6 +130,17 @@ pub(super) fn edf(alpha: i32, m: usize, n: usize) -> f64 {
         .unwrap_or_else(|| (1.5 * n as f64 / m.max(1) as f64).max(1.0))
 }
 
+/// The typical sensor's variance at one point from the sensors' estimates `d` (EDF `nu_s` each): their median
+/// corrected to a mean, and the uncertainty of its ln (the median of N estimates has ≈ π/2 × the variance of their
+/// mean; ln of a variance estimate has variance 2/ν).
+fn typical_of(d: &[f64], nu_s: f64) -> (f64, f64) {
+    let ns = d.len().max(1) as f64;
+    (
+        median(d) * median_to_mean(nu_s),
+        (std::f64::consts::FRAC_PI_2 * 2.0 / nu_s / ns).sqrt(),
+    )
+}
+
 /// The statistics of one half of one axis at every octave τ it supports.
 #[derive(Clone, Debug, Default)]
 pub(super) struct Half {
@@ -202,11 +213,9 @@ impl Half {
             h.cluster.push(p.dev * p.dev);
             h.edf.push(nu);
             h.alpha.push(alpha);
-            h.typical.push(median(&d) * median_to_mean(nu_s));
-            // The median of N estimates has ≈ π/2 × the variance of their mean; ln of a variance estimate has
-            // variance 2/ν.
-            h.typical_sigma
-                .push((std::f64::consts::FRAC_PI_2 * 2.0 / nu_s / ns.max(1) as f64).sqrt());
+            let (typical, sigma) = typical_of(&d, nu_s);
+            h.typical.push(typical);
+            h.typical_sigma.push(sigma);
             h.single_edf.push(nu_s);
             h.paired.push(None);
             for (hs, di) in h.singles.iter_mut().zip(&d) {
@@ -227,7 +236,11 @@ impl Half {
     /// cluster). Points without a first-half point at the same averaging factor keep [`Half::typical`].
     pub(super) fn pair_with(&mut self, first: &Half) {
         for k in 0..self.len() {
-            let Some(kf) = first.m.iter().position(|&m| Some(&m) == self.m.get(k)) else {
+            let Some(kf) = self
+                .m
+                .get(k)
+                .and_then(|m| first.m.iter().position(|x| x == m))
+            else {
                 continue;
             };
             let ratios: Vec<f64> = self
@@ -355,9 +368,7 @@ mod tests {
     /// One point of a half whose single-sensor estimates are `singles` (χ²_ν/ν draws about their parts' levels)
     /// and whose cluster estimate is `cluster`, as [`Half::measure`] sets its typical variance.
     fn one_point(singles: &[f64], cluster: f64, nu: f64) -> Half {
-        let ns = singles.len() as f64;
-        let typical = median(singles) * median_to_mean(nu);
-        let sigma = (std::f64::consts::FRAC_PI_2 * 2.0 / nu / ns).sqrt();
+        let (typical, sigma) = typical_of(singles, nu);
         Half {
             n: 1000,
             tau_s: vec![1.0],

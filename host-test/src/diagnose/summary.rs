@@ -34,6 +34,7 @@ pub(super) fn tau_rows(
             crate::allan::confidence_interval(dev, h.edf[k], crate::allan::ONE_SIGMA_CI)
                 .unwrap_or((dev, dev));
         let (b, a) = (before[k], after[k]);
+        let (v_after, sigma_after) = h.scale(model, w, k);
         rows.push(TauRow {
             tau_s: t,
             blocks: h.n / h.m[k].max(1),
@@ -43,8 +44,8 @@ pub(super) fn tau_rows(
             dev_lo,
             dev_hi,
             predicted_before: p0.avar(w, t, h.scale(p0, w, k).0, th).max(0.0).sqrt(),
-            predicted_after: model.avar(w, t, h.scale(model, w, k).0, th).max(0.0).sqrt(),
-            prediction_sigma_ln: 0.5 * h.scale(model, w, k).1,
+            predicted_after: model.avar(w, t, v_after, th).max(0.0).sqrt(),
+            prediction_sigma_ln: 0.5 * sigma_after,
             gap_before: b.g,
             gap_after: a.g,
             sigma_ln: b.sigma,
