@@ -87,8 +87,14 @@ pub fn solve<const K: usize>(rows: &[([f64; K], f64, f64)], mask: u32) -> Option
 /// every subset of terms is solved and the cheapest all-non-negative solution kept (exact NNLS for a few terms).
 /// `None` if no subset is solvable (no rows, or all-zero bases).
 pub fn nnls<const K: usize>(rows: &[([f64; K], f64, f64)]) -> Option<[f64; K]> {
+    nnls_first(rows, K.min(8))
+}
+
+/// [`nnls`] on the first `used` (≤ 10) basis functions of the rows (the others get 0): one row type serves fits
+/// of different sizes at the cost of the size in use.
+pub fn nnls_first<const K: usize>(rows: &[([f64; K], f64, f64)], used: usize) -> Option<[f64; K]> {
     let mut best: Option<(f64, [f64; K])> = None;
-    for mask in 1u32..(1 << K.min(8)) {
+    for mask in 1u32..(1 << used.min(K).min(10)) {
         let Some(c) = solve(rows, mask) else {
             continue;
         };

@@ -252,6 +252,7 @@ fn typical_shape_fit(
     let spec = terms_fit::Spec {
         tau0_s: tau0,
         band: bandwidth,
+        lines: false,
     };
     terms_fit::fit_band_tested(&terms_fit::Obs::of(typical_pts), Some([&a, &b]), &spec)
 }

@@ -348,6 +348,7 @@ mod tests {
             gm: vec![GaussMarkov {
                 sigma: 1.0,
                 tau_s: 1.0,
+                ..Default::default()
             }],
             tau0_s: 0.01,
         };
@@ -359,6 +360,7 @@ mod tests {
             gm: vec![GaussMarkov {
                 sigma: 1e-4,
                 tau_s: 1.0,
+                ..Default::default()
             }],
             ..shape
         };

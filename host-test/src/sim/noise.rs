@@ -223,6 +223,54 @@ pub fn ar1_avar(var: f64, a: f64, m: f64) -> f64 {
     }
 }
 
+/// Non-overlapping AVAR of a **narrow-band** Gauss–Markov process point-sampled every Δt: autocovariance
+/// `var·e^{−k·a}·cos(kθ)` at lag k (`a = Δt/T`, `θ = 2π·f·Δt`), the real part of a complex AR(1)
+/// `c ← e^{−a+iθ}·c + w` (a line of frequency f whose amplitude and phase wander with correlation time T), for
+/// `m`-sample means. At θ = 0 it is [`ar1_avar`] (which stays the real computation, bit for bit).
+///
+/// The Allan variance is linear in the autocovariance, so it is [`ar1_avar`]'s expression at the complex
+/// `a − iθ`, real part taken: `(m(1+z)(1−z) − z·v(2+v)) / (m²(1−z)²)` with `z = e^{−a+iθ}`, `v = 1 − z^m`, and
+/// where `m·|a − iθ| ≤ 10⁻²` its series in powers of `a − iθ` (the same moments), `1 − z` from an exact `expm1`.
+pub fn line_avar(var: f64, a: f64, theta: f64, m: f64) -> f64 {
+    use nalgebra::Complex;
+    if var == 0.0 {
+        return 0.0;
+    }
+    let s = Complex::new(a, -theta); // z = e^{−s}
+    // 1 − e^{−x} for complex x, without cancellation: −(e^{−re}·(cos im' + i sin im') − 1).
+    let one_minus_exp = |x: Complex<f64>| {
+        let (re, im) = (-x.re, -x.im);
+        let half = (im / 2.0).sin();
+        -Complex::new(
+            re.exp_m1() * im.cos() - 2.0 * half * half,
+            re.exp() * im.sin(),
+        )
+    };
+    let g = if m * s.norm() > 1e-2 {
+        let z = (-s).exp();
+        let u = one_minus_exp(s);
+        let v = one_minus_exp(s * m);
+        (u * m * (z + 1.0) - z * v * (v + 2.0)) / (u * u * (m * m))
+    } else {
+        let m2 = m * m;
+        let m4 = m2 * m2;
+        let moments = [
+            -2.0 * m * (2.0 * m2 + 1.0) / 3.0,
+            -2.0 * m4,
+            -2.0 * m * (21.0 * m4 - 5.0 * m2 - 1.0) / 15.0,
+            -2.0 * m4 * (2.0 * m2 - 1.0),
+        ];
+        let mut sum = Complex::new(0.0, 0.0);
+        let mut coef = Complex::new(1.0, 0.0); // (−s)^p / p!
+        for (p, mp) in moments.iter().enumerate() {
+            coef *= -s / (p as f64 + 1.0);
+            sum += coef * *mp;
+        }
+        sum / (2.0 * m2)
+    };
+    var * g.re
+}
+
 /// AVAR of a continuous first-order Gauss–Markov process (σ², correlation time `t`) averaged over τ.
 pub fn gm_avar_continuous(var: f64, t: f64, tau: f64) -> f64 {
     if var == 0.0 {
@@ -471,6 +519,23 @@ impl Ar1 {
             x = phi * x + sd * normal(&mut self.rng);
         }
         self.x = x;
+    }
+}
+
+/// Adds to `out` a narrow-band Gauss–Markov process ([`line_avar`]'s: variance `var`, `a = Δt/T`, `θ = 2π·f·Δt`),
+/// exactly discretised: the real part of the complex AR(1) `c ← e^{−a}·e^{iθ}·c + w`, both parts of `w` of
+/// variance `var·(1 − e^{−2a})`, started stationary; its own stream of `seed`.
+pub fn add_line(out: &mut [f64], var: f64, a: f64, theta: f64, seed: u64) {
+    let mut rng = stream(seed, 5);
+    let sd0 = var.sqrt();
+    let (mut re, mut im) = (sd0 * normal(&mut rng), sd0 * normal(&mut rng));
+    let r = (-a).exp();
+    let (c, s) = (r * theta.cos(), r * theta.sin());
+    let sd = (var * -(-2.0 * a).exp_m1()).sqrt();
+    for o in out {
+        *o += re;
+        let (wr, wi) = (sd * normal(&mut rng), sd * normal(&mut rng));
+        (re, im) = (c * re - s * im + wr, s * re + c * im + wi);
     }
 }
 

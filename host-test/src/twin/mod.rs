@@ -25,10 +25,13 @@ pub use fit::fit;
 pub use play::{PlayOptions, play};
 
 /// The format tag of a model file; a file with another tag is refused.
-pub const FORMAT: &str = "imu-cluster-twin/2";
-/// The previous format, still read: format 2 added the sensors' and shared processes' sinusoids and the sensors'
+pub const FORMAT: &str = "imu-cluster-twin/3";
+/// The first format, still read: format 2 added the sensors' and shared processes' sinusoids and the sensors'
 /// bias steps (a format-1 file has none).
 pub const FORMAT_1: &str = "imu-cluster-twin/1";
+/// The second format, still read: format 3 added the narrow-band Gauss–Markov terms (`freq_hz`; a format-2 file
+/// has none, and a format-2 reader would play them as first-order terms, hence the new tag).
+pub const FORMAT_2: &str = "imu-cluster-twin/2";
 
 /// Why a model could not be fitted, read, written or played.
 #[derive(Debug, thiserror::Error)]
@@ -83,22 +86,44 @@ pub const GM_MAX: usize = 2;
 
 /// A first-order Gauss–Markov process: stationary standard deviation `sigma` (unit) and correlation time `tau_s`;
 /// sampled every τ₀ it is the AR(1) `x_{k+1} = φ·x_k + w_k`, `φ = exp(−τ₀/T)`, `var w = σ²(1 − φ²)` (exact).
+/// With a frequency `freq_hz` > 0 it is the **narrow-band** form, a line whose amplitude and phase wander with
+/// correlation time T (autocovariance `σ²·e^{−|t|/T}·cos 2πft`; the real part of the complex AR(1) with
+/// `φ = exp(−τ₀/T + 2πi·f·τ₀)`, exact: `sim::noise::add_line`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct GaussMarkov {
     /// Stationary standard deviation σ, unit.
     pub sigma: f64,
     /// Correlation time T, s.
     pub tau_s: f64,
+    /// Centre frequency f of the narrow-band form, Hz; 0 (the default, not written) for the first-order process.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub freq_hz: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl GaussMarkov {
-    /// Allan variance at `tau_s` of the process point-sampled every `tau0_s` (`sim::noise::ar1_avar`).
+    /// Allan variance at `tau_s` of the process point-sampled every `tau0_s` (`sim::noise::ar1_avar`, or
+    /// `sim::noise::line_avar` for the narrow-band form).
     pub fn avar(&self, tau_s: f64, tau0_s: f64) -> f64 {
-        gm_basis(self.tau_s, tau_s, tau0_s) * self.sigma * self.sigma
+        line_basis(self.tau_s, self.freq_hz, tau_s, tau0_s) * self.sigma * self.sigma
+    }
+
+    /// The same process (correlation time and frequency) as `other`.
+    pub fn same_process(&self, other: &GaussMarkov) -> bool {
+        (other.tau_s / self.tau_s - 1.0).abs() < 1e-9
+            && (other.freq_hz - self.freq_hz).abs() <= 1e-9 * self.freq_hz
     }
 
     fn is_valid(&self) -> bool {
-        self.sigma.is_finite() && self.sigma >= 0.0 && self.tau_s.is_finite() && self.tau_s > 0.0
+        self.sigma.is_finite()
+            && self.sigma >= 0.0
+            && self.tau_s.is_finite()
+            && self.tau_s > 0.0
+            && self.freq_hz.is_finite()
+            && self.freq_hz >= 0.0
     }
 }
 
@@ -106,6 +131,15 @@ impl GaussMarkov {
 /// `tau0_s`, at `tau_s` (`m = τ/τ₀` samples per average).
 pub fn gm_basis(t_s: f64, tau_s: f64, tau0_s: f64) -> f64 {
     crate::sim::noise::ar1_avar(1.0, tau0_s / t_s, (tau_s / tau0_s).max(1.0))
+}
+
+/// [`gm_basis`] of the narrow-band form at `freq_hz` (the first-order one at 0).
+pub fn line_basis(t_s: f64, freq_hz: f64, tau_s: f64, tau0_s: f64) -> f64 {
+    if freq_hz == 0.0 {
+        return gm_basis(t_s, tau_s, tau0_s);
+    }
+    let theta = std::f64::consts::TAU * freq_hz * tau0_s;
+    crate::sim::noise::line_avar(1.0, tau0_s / t_s, theta, (tau_s / tau0_s).max(1.0))
 }
 
 impl NoiseTerms {
@@ -168,12 +202,12 @@ impl NoiseTerms {
                 let same = other
                     .gauss_markov
                     .iter()
-                    .filter(|o| (o.tau_s / g.tau_s - 1.0).abs() < 1e-9)
+                    .filter(|o| g.same_process(o))
                     .map(|o| o.sigma * o.sigma)
                     .sum::<f64>();
                 GaussMarkov {
                     sigma: (g.sigma * g.sigma - same).max(0.0).sqrt(),
-                    tau_s: g.tau_s,
+                    ..*g
                 }
             })
             .filter(|g| g.sigma > 0.0)
@@ -187,7 +221,8 @@ impl NoiseTerms {
     }
 
     /// These terms scaled term by term in Allan variance: `f` holds the factors of the quantisation, white,
-    /// flicker (with every Gauss–Markov term), random-walk and ramp terms (negative ones count as 0).
+    /// flicker (with every Gauss–Markov term, first-order or narrow-band), random-walk and ramp terms (negative ones
+    /// count as 0).
     pub fn by_term_factors(&self, f: &[f64; 5]) -> NoiseTerms {
         let c = self.avar_coefficients();
         let mut t = Self::from_avar_coefficients([0, 1, 2, 3, 4].map(|k| c[k] * f[k].max(0.0)));
@@ -196,7 +231,7 @@ impl NoiseTerms {
             .iter()
             .map(|g| GaussMarkov {
                 sigma: g.sigma * f[2].max(0.0).sqrt(),
-                tau_s: g.tau_s,
+                ..*g
             })
             .collect();
         t
@@ -436,12 +471,12 @@ impl ClusterModel {
             reason,
         };
         let mut m: ClusterModel = toml::from_str(text).map_err(|e| format(e.to_string()))?;
-        if m.format == FORMAT_1 {
+        if m.format == FORMAT_1 || m.format == FORMAT_2 {
             m.format = FORMAT.into();
         }
         if m.format != FORMAT {
             return Err(format(format!(
-                "format \"{}\", expected \"{FORMAT}\" (or \"{FORMAT_1}\")",
+                "format \"{}\", expected \"{FORMAT}\" (or \"{FORMAT_2}\", \"{FORMAT_1}\")",
                 m.format
             )));
         }

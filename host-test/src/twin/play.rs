@@ -67,8 +67,8 @@ fn noise(
     Ok(v)
 }
 
-/// Adds the Gauss–Markov terms `gm` to `out` (each its own stream of `seed`; the simulator's exact AR(1),
-/// started stationary).
+/// Adds the Gauss–Markov terms `gm` to `out` (each its own stream of `seed`; the simulator's exact AR(1), or the
+/// narrow-band form's complex AR(1), started stationary).
 fn add_gauss_markov(
     out: &mut [f64],
     gm: &[GaussMarkov],
@@ -77,12 +77,19 @@ fn add_gauss_markov(
 ) -> Result<(), TwinError> {
     let mut v = vec![0.0; out.len()];
     for (k, g) in gm.iter().enumerate() {
+        let stream = mix(seed, k as u64, 0x6A, 0);
+        if g.freq_hz > 0.0 {
+            let dt = sampling.dt_s;
+            let theta = std::f64::consts::TAU * g.freq_hz * dt;
+            crate::sim::noise::add_line(out, g.sigma * g.sigma, dt / g.tau_s, theta, stream);
+            continue;
+        }
         let params = NoiseParams {
             gm_sigma: g.sigma,
             gm_tau_s: g.tau_s,
             ..NoiseParams::default()
         };
-        SensorNoise::new(&params, sampling, mix(seed, k as u64, 0x6A, 0))
+        SensorNoise::new(&params, sampling, stream)
             .map_err(|e| TwinError::Invalid(e.to_string()))?
             .fill(&mut v);
         out.iter_mut().zip(&v).for_each(|(x, y)| *x += y);

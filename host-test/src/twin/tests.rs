@@ -32,6 +32,7 @@ fn model() -> ClusterModel {
                         vec![GaussMarkov {
                             sigma: 0.01,
                             tau_s: 0.4,
+                            ..Default::default()
                         }]
                     } else {
                         Vec::new()
@@ -50,6 +51,7 @@ fn model() -> ClusterModel {
                 gauss_markov: vec![GaussMarkov {
                     sigma: 0.003,
                     tau_s: 3.0,
+                    ..Default::default()
                 }],
                 ..terms(0.0, 0.004, 0.0)
             },
@@ -344,7 +346,7 @@ fn compare_tells_a_different_cluster_from_a_fresh_record() {
     assert!(az.cluster.scan[1] > az.cluster.threshold);
 }
 
-/// Format 2's sinusoids and steps round-trip, a format-1 file (none of them) still reads, and the played record
+/// Format 2's sinusoids and steps round-trip, a format-1 file (none of them) and a format-2 file still read, and the played record
 /// carries them exactly: a sensor's step and sinusoid, a shared sinusoid on its members only, none without effects.
 #[test]
 fn sinusoids_and_steps_are_kept_and_played() {
@@ -353,6 +355,8 @@ fn sinusoids_and_steps_are_kept_and_played() {
     m.axes[0].bandwidth_hz = None;
     let v1 = m.to_toml().unwrap().replace(FORMAT, FORMAT_1);
     assert_eq!(ClusterModel::from_toml(&v1, "v1.toml").unwrap(), m);
+    let v2 = m.to_toml().unwrap().replace(FORMAT, FORMAT_2);
+    assert_eq!(ClusterModel::from_toml(&v2, "v2.toml").unwrap(), m);
     let own = Sinusoid {
         period_s: 50.0,
         amplitude: 0.3,
