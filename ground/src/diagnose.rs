@@ -32,6 +32,12 @@ pub struct Args {
     /// --model`.
     #[arg(long)]
     model: Option<PathBuf>,
+    /// With --model: check the fit against N records played from the fitted model, diagnosed and fitted the same
+    /// way: how many octave τ the terms leave outside the record's 68 % interval, beside what records of exactly
+    /// this model score, and the Monte Carlo p-value (a parametric bootstrap; docs/twin.md). Each replica costs
+    /// about one diagnosis and one fit.
+    #[arg(long, requires = "model", value_name = "N")]
+    check_fit: Option<usize>,
     /// Weights of the cluster mean.
     #[arg(long, value_enum, default_value = "equal")]
     weights: WeightsArg,
@@ -146,6 +152,16 @@ pub fn run(a: Args) -> Result<()> {
                 "absent"
             }
         );
+        for axis in &model.axes {
+            if let Some(c) = &axis.coverage {
+                println!("  {}: {}", axis.axis, c.summary());
+            }
+        }
+        let seeds: Vec<u64> = (1..=a.check_fit.unwrap_or(0) as u64).collect();
+        let pb = spinner("checking the fit");
+        let check = host_test::twin::coverage::check(&model, &seeds, &opts)?;
+        pb.finish_and_clear();
+        println!("fit: the terms are {}", check.summary());
     }
     Ok(())
 }

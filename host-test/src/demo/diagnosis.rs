@@ -24,7 +24,7 @@ pub(super) fn of_record(
 ) -> Result<Diagnosed, DemoError> {
     let r = diagnose(rec, &Options::default())?;
     report::write(&r, dir, "the demo's simulated record")?;
-    let twin = crate::twin::close_the_loop(rec, &r, "the demo's record", twin_dir, 2)?;
+    let twin = crate::twin::close_the_loop(rec, &r, "the demo's record", twin_dir, 2, &[])?;
     DemoError::write(
         &dir.join("diagnose.json"),
         serde_json::to_string_pretty(&r)?,
@@ -69,7 +69,10 @@ pub(super) fn of_real_excerpt(dir: &std::path::Path) -> Result<RealTwin, DemoErr
         &diag.join("diagnose.json"),
         serde_json::to_string_pretty(&r)?,
     )?;
-    let twin = crate::twin::close_the_loop(&rec, &r, REAL_SOURCE, &dir.join("twin"), 2)?;
+    // The fit checked against 19 records played from the model (a p-value to 0.05; about 4 s).
+    let check_seeds: Vec<u64> = (1..=19).collect();
+    let twin =
+        crate::twin::close_the_loop(&rec, &r, REAL_SOURCE, &dir.join("twin"), 2, &check_seeds)?;
     Ok(RealTwin {
         imus: stream.frames.first().map_or(0, |f| f.imu.len()),
         samples: rec.len(),
@@ -128,6 +131,14 @@ mod tests {
         let real = of_real_excerpt(&dir).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
         assert_eq!((real.imus, real.samples), (8, 1621));
+        // The fit checked on 19 records of its own model: every one diagnosed and fitted, a p-value in (0, 1].
+        let fit = &real.twin.fit;
+        assert_eq!(fit.replicas.len(), 19, "{fit:?}");
+        assert!(
+            fit.record.1 > 0 && fit.replicas.iter().all(|r| r.1 == fit.record.1),
+            "{fit:?}"
+        );
+        assert!(fit.p_value.is_some_and(|p| p > 0.0 && p <= 1.0), "{fit:?}");
         assert!((real.rate_hz - 62.5).abs() < 1e-9, "{}", real.rate_hz);
         let t = &real.twin;
         assert!(

@@ -193,13 +193,16 @@ fn diagnosis_section(s: &mut String, r: &DemoResult) {
         "## The twin of a real cluster (`real/`)\n\nThe same loop on a real {}-IMU array: exp_6 of the MIMU4444 recordings \
          (Carlsson et al. 2021), its longest static interval ({} samples, {:.1} s at {:.1} Hz, nominal scales; built in). \
          The diagnosis (`real/diagnose/`) names: {effects}. Its twin (`real/twin/`) against the very interval it was \
-         fitted on (scan threshold {:.2}):\n\n{}",
+         fitted on (scan threshold {:.2}):\n\n{}\nDoes the noise model follow the record? Its terms are {}: p is the \
+         chance that a record of exactly this model leaves as large a share of τ outside (a parametric bootstrap, \
+         `docs/twin.md`).\n",
         real.imus,
         real.samples,
         real.samples as f64 / real.rate_hz,
         real.rate_hz,
         t.threshold,
-        twin_table(t)
+        twin_table(t),
+        t.fit.summary()
     );
 }
 

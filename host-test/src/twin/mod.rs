@@ -618,17 +618,23 @@ pub struct LoopSummary {
     pub without_effects_scan: f64,
     /// The scan threshold.
     pub threshold: f64,
+    /// The fitted terms against the record's 68 % intervals, beside records played from the model
+    /// ([`coverage::check`]).
+    pub fit: coverage::FitCheck,
 }
 
 /// The sim-to-real loop on a recording already diagnosed: the model fitted and saved (`dir/model.toml`), its twin
 /// played with and without effects (noise seed `seed`), each compared with the recording (`dir/compare-with.json`,
-/// `dir/compare-without.json`, and the plot of the first, `dir/compare.png`). What `ground demo` shows.
+/// `dir/compare-without.json`, and the plot of the first, `dir/compare.png`); the fit checked against one record
+/// played from the model per seed of `check_seeds` ([`coverage::check`], diagnosed with the default options, as
+/// `report` must have been). What `ground demo` shows.
 pub fn close_the_loop(
     rec: &crate::recording::Recording,
     report: &crate::diagnose::Report,
     source: &str,
     dir: &Path,
     seed: u64,
+    check_seeds: &[u64],
 ) -> Result<LoopSummary, TwinError> {
     let io = |path: &Path| {
         let path = path.display().to_string();
@@ -670,6 +676,7 @@ pub fn close_the_loop(
         without_effects: without.significant_axes.clone(),
         without_effects_scan: without.largest_scan().0,
         threshold: with.largest_scan().1,
+        fit: coverage::check(&model, check_seeds, &crate::diagnose::Options::default())?,
     })
 }
 
