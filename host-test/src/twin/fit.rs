@@ -494,14 +494,14 @@ fn own_terms(
 }
 
 /// Shares the narrow-band terms (lines) of each sensor's own terms `own` out among the sensors by what each one's
-/// curve holds of them: sensor `i`'s line `k` is scaled by `sᵢₖ ≥ 0`, the non-negative weighted least squares of
-/// its lines' Allan variances on what its octave points `points` hold above its other terms (weights `ν/2σ⁴`);
+/// curve holds of them: sensor `i`'s line `k` is scaled by `sᵢₖ ≥ 0`, its coefficient in the non-negative weighted
+/// least squares of its octave points `points` on its lines' Allan variances and its other terms' (weights `ν/2σ⁴`);
 /// then each line's `sᵢₖ` by one constant, so that its total over the sensors is what it was. The typical terms'
 /// lines are fitted to the sensors' mean (and chosen on held-out halves there), but real lines sit on some parts
 /// only (a MIMU4444 gyro x part at 13 Hz): given to every sensor alike, they made the twin's median sensor too loud
 /// where they act (the demo's real excerpt: gyro x told apart at 0.128–0.256 s, z −4.3). The mean, which the
 /// cluster and the coverage see, is unchanged.
-fn share_lines(
+pub(super) fn share_lines(
     own: &mut [NoiseTerms],
     points: &[Vec<AnalysisPoint>],
     tau0: f64,
@@ -532,17 +532,22 @@ fn share_lines(
                     .collect(),
                 ..o.clone()
             };
-            let rows: Vec<([f64; L], f64, f64)> = Obs::of(p)
+            // The other terms scaled too (column 0), so that a sensor's chance excess over them at long τ, where a
+            // line's Allan variance falls as white noise's, is not taken for its share of the line.
+            let rows: Vec<([f64; L + 1], f64, f64)> = Obs::of(p)
                 .iter()
                 .map(|ob| {
-                    let mut r = [0.0; L];
-                    r.iter_mut()
+                    let mut r = [0.0; L + 1];
+                    r[0] = base.avar(ob.tau_s, tau0, band);
+                    r[1..]
+                        .iter_mut()
                         .zip(&lines)
                         .for_each(|(x, g)| *x = g.avar(ob.tau_s, tau0));
-                    (r, ob.avar - base.avar(ob.tau_s, tau0, band), ob.weight)
+                    (r, ob.avar, ob.weight)
                 })
                 .collect();
-            crate::allan::noisefit::nnls_first::<L>(&rows, lines.len()).unwrap_or([1.0; L])
+            crate::allan::noisefit::nnls_first::<{ L + 1 }>(&rows, 1 + lines.len())
+                .map_or([1.0; L], |c| std::array::from_fn(|k| c[k + 1]))
         })
         .collect();
     for k in 0..L {

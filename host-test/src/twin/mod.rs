@@ -61,8 +61,9 @@ pub enum TwinError {
 }
 
 /// The noise terms of one sensor axis or shared process, in physical units (gyro °/s, accelerometer g): the five
-/// IEEE Std 952 terms and up to [`GM_MAX`] first-order Gauss–Markov terms (the GMWM composite model's, for the bumps
-/// real sensors show between the white and the flicker regions).
+/// IEEE Std 952 terms, up to [`GM_MAX`] first-order Gauss–Markov terms (the GMWM composite model's, for the bumps
+/// real sensors show between the white and the flicker regions) and up to [`terms_fit::LINES_MAX`] narrow-band ones
+/// (wandering lines).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct NoiseTerms {
     /// Quantisation Q, unit·s (Allan variance 3Q²/τ²).
@@ -75,13 +76,13 @@ pub struct NoiseTerms {
     pub random_walk: f64,
     /// Ramp R, unit/s (R²τ²/2).
     pub ramp: f64,
-    /// First-order Gauss–Markov terms (AR(1) at any sampling), of the output: they are played after the axis's
-    /// bandwidth, and their Allan variance is the sampled process's, exactly.
+    /// Gauss–Markov terms, first-order (AR(1) at any sampling) or narrow-band, of the output: they are played after
+    /// the axis's bandwidth, and their Allan variance is the sampled process's, exactly.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub gauss_markov: Vec<GaussMarkov>,
 }
 
-/// Most Gauss–Markov terms a fit gives one curve.
+/// Most first-order Gauss–Markov terms a fit gives one curve.
 pub const GM_MAX: usize = 2;
 
 /// A first-order Gauss–Markov process: stationary standard deviation `sigma` (unit) and correlation time `tau_s`;
