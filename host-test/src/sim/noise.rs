@@ -206,13 +206,7 @@ pub fn ar1_avar(var: f64, a: f64, m: f64) -> f64 {
         var * (m * (1.0 + phi) * u - phi * v * (2.0 + v)) / (u * u * m * m)
     } else {
         let m2 = m * m;
-        let m4 = m2 * m2;
-        let moments = [
-            -2.0 * m * (2.0 * m2 + 1.0) / 3.0,
-            -2.0 * m4,
-            -2.0 * m * (21.0 * m4 - 5.0 * m2 - 1.0) / 15.0,
-            -2.0 * m4 * (2.0 * m2 - 1.0),
-        ];
+        let moments = series_moments(m);
         let mut sum = 0.0;
         let mut coef = 1.0; // (−a)^p / p!
         for (p, mp) in moments.iter().enumerate() {
@@ -221,6 +215,20 @@ pub fn ar1_avar(var: f64, a: f64, m: f64) -> f64 {
         }
         var * sum / (2.0 * m2)
     }
+}
+
+/// The lag moments of the Allan variance's series in powers of `−a` (first-order) or `−(a − iθ)` (narrow-band) at
+/// `m`-sample means, shared by [`ar1_avar`] and [`line_avar`]: the sum `Σₚ (−s)^p/p! · momentₚ / 2m²` is the
+/// Allan variance per unit variance for small `m·|s|`.
+fn series_moments(m: f64) -> [f64; 4] {
+    let m2 = m * m;
+    let m4 = m2 * m2;
+    [
+        -2.0 * m * (2.0 * m2 + 1.0) / 3.0,
+        -2.0 * m4,
+        -2.0 * m * (21.0 * m4 - 5.0 * m2 - 1.0) / 15.0,
+        -2.0 * m4 * (2.0 * m2 - 1.0),
+    ]
 }
 
 /// Non-overlapping AVAR of a **narrow-band** Gauss–Markov process point-sampled every Δt: autocovariance
@@ -253,13 +261,7 @@ pub fn line_avar(var: f64, a: f64, theta: f64, m: f64) -> f64 {
         (u * m * (z + 1.0) - z * v * (v + 2.0)) / (u * u * (m * m))
     } else {
         let m2 = m * m;
-        let m4 = m2 * m2;
-        let moments = [
-            -2.0 * m * (2.0 * m2 + 1.0) / 3.0,
-            -2.0 * m4,
-            -2.0 * m * (21.0 * m4 - 5.0 * m2 - 1.0) / 15.0,
-            -2.0 * m4 * (2.0 * m2 - 1.0),
-        ];
+        let moments = series_moments(m);
         let mut sum = Complex::new(0.0, 0.0);
         let mut coef = Complex::new(1.0, 0.0); // (−s)^p / p!
         for (p, mp) in moments.iter().enumerate() {

@@ -315,6 +315,12 @@ mod tests {
     fn curves(params: &NoiseParams, seed: u64) -> (Vec<Obs>, [Vec<Obs>; 2], NoiseModel) {
         let sampling = Sampling::new(1.0 / TAU0, N as f64 * TAU0).unwrap();
         let x = SensorNoise::series(params, &sampling, N, seed).unwrap();
+        let (whole, halves) = whole_and_halves(&x);
+        (whole, halves, NoiseModel::new(params, &sampling).unwrap())
+    }
+
+    /// The octave observations of a series and of its halves.
+    fn whole_and_halves(x: &[f64]) -> (Vec<Obs>, [Vec<Obs>; 2]) {
         let mut an = Analyzer::new();
         let mut obs = |s: &[f64]| {
             Obs::of(&an.analyze(
@@ -325,9 +331,8 @@ mod tests {
                 &Options::default(),
             ))
         };
-        let whole = obs(&x);
-        let halves = [obs(&x[..N / 2]), obs(&x[N / 2..])];
-        (whole, halves, NoiseModel::new(params, &sampling).unwrap())
+        let whole = obs(x);
+        (whole, [obs(&x[..N / 2]), obs(&x[N / 2..])])
     }
 
     fn spec() -> Spec<'static> {
@@ -408,17 +413,7 @@ mod tests {
         let mut r = crate::testrng::TestRng::new(43);
         let mut x: Vec<f64> = (0..N).map(|_| white / TAU0.sqrt() * r.normal()).collect();
         crate::sim::noise::add_line(&mut x, sigma * sigma, a, theta, 44);
-        let mut an = Analyzer::new();
-        let mut obs = |s: &[f64]| {
-            Obs::of(&an.analyze(
-                DevKind::Oadev,
-                s,
-                TAU0,
-                &TauSpec::Octave,
-                &Options::default(),
-            ))
-        };
-        let (whole, h0, h1) = (obs(&x), obs(&x[..N / 2]), obs(&x[N / 2..]));
+        let (whole, [h0, h1]) = whole_and_halves(&x);
         let t = fit(&whole, Some([&h0, &h1]), &spec());
         let line = t
             .gauss_markov
